@@ -1,0 +1,21 @@
+"""The true world: procedural ProcTHOR-like houses and the ProcTHOR JSON importer."""
+
+from bfsop_jax.world.constants import (
+    CATEGORY_NAMES,
+    RECEPTACLE_NAMES,
+    ROOM_TYPE_NAMES,
+    TARGET_NAMES,
+    category_id,
+    target_id,
+)
+from bfsop_jax.world.types import House
+
+__all__ = [
+    "CATEGORY_NAMES",
+    "RECEPTACLE_NAMES",
+    "ROOM_TYPE_NAMES",
+    "TARGET_NAMES",
+    "House",
+    "category_id",
+    "target_id",
+]
