@@ -14,7 +14,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
-__all__ = ["Preset", "PRESET_NAMES", "get_preset"]
+__all__ = ["EVAL_SEED_START", "PRESET_NAMES", "Preset", "get_preset", "parse_seed_range"]
+
+# House seeds: training houses use seeds below EVAL_SEED_START, evaluation houses start
+# there, so the two never meet (SPEC 9.2).
+EVAL_SEED_START = 1_000_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,3 +140,17 @@ def get_preset(name: str | Preset) -> Preset:
     except (KeyError, TypeError):
         valid = ", ".join(repr(n) for n in PRESET_NAMES)
         raise ValueError(f"unknown preset {name!r}; valid presets are {valid}") from None
+
+
+def parse_seed_range(text: str) -> range:
+    """Parse "START:END" (END exclusive) into a range of house seeds, with a clear error."""
+    try:
+        start_s, end_s = text.split(":")
+        start, end = int(start_s), int(end_s)
+    except ValueError:
+        raise ValueError(
+            f"seed range must look like START:END (e.g. 1000000:1000010), got {text!r}"
+        ) from None
+    if start < 0 or end <= start:
+        raise ValueError(f"seed range {text!r} is empty or negative")
+    return range(start, end)
