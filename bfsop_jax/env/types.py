@@ -1,0 +1,54 @@
+"""State, action and step-report pytrees of the navigation environment.
+
+Shapes: H, W = ``preset.grid_shape``; M = ``preset.max_objects``; K = ``preset.micro_steps``.
+"""
+
+from __future__ import annotations
+
+import jax
+from flax import struct
+
+from bfsop_jax.world.types import House
+
+
+@struct.dataclass
+class EnvState:
+    """Everything an episode carries between steps (pure data, vmappable)."""
+
+    house: House  # the true world (never shown to planners)
+    category: jax.Array  # int32 []: target category of the episode
+    prior: jax.Array  # float32 [N_CATEGORIES, N_TARGETS]: co-occurrence prior P(c | landmark)
+    belief: jax.Array  # float32 [H, W]: occupancy log-odds, 0 = unknown
+    pose: jax.Array  # float32 [3]: x, y (metres), heading (radians)
+    path_length: jax.Array  # float32 []: L, metres travelled so far
+    budget: jax.Array  # float32 []: B, metres
+    found: jax.Array  # bool [M]: verified instances of the target (F_t)
+    landmarks_seen: jax.Array  # bool [M]: landmarks of interest detected so far
+    steps: jax.Array  # int32 []: env.step calls so far
+    done: jax.Array  # bool []: the budget gate has closed
+
+
+@struct.dataclass
+class Action:
+    """A macro action: follow the optimistic-map path to ``goal_xy``.
+
+    On arrival the agent turns to face ``look_xy`` and senses once more when ``look`` is
+    true (viewpoint visits face their landmark).
+    """
+
+    goal_xy: jax.Array  # float32 [2], metres
+    look_xy: jax.Array  # float32 [2], metres
+    look: jax.Array  # bool []
+
+
+@struct.dataclass
+class StepInfo:
+    """What happened during one ``step`` (K motion steps)."""
+
+    poses: jax.Array  # float32 [K, 3]: pose after each motion step (repeats when idle)
+    moved: jax.Array  # bool [K]: the motion step moved the agent
+    travelled: jax.Array  # float32 []: metres travelled during this step
+    arrived: jax.Array  # bool []: the goal's planning cell was reached
+    blocked: jax.Array  # bool []: traversability gate fired (next position not traversable)
+    unreachable: jax.Array  # bool []: the goal is unreachable on the optimistic map
+    new_found: jax.Array  # int32 []: targets verified during this step
