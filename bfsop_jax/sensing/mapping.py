@@ -87,7 +87,9 @@ class Rays:
     angle: jax.Array  # [n_rays] float32: world angle of each ray (quantised), radians
     hit: jax.Array  # [n_rays] bool: the ray met an occupied / out-of-grid cell in range
     hit_dist: jax.Array  # [n_rays] float32: metres to the first blocked sample, range if none
-    hit_cell: jax.Array  # [n_rays, 2] int32: (row, col) of the first blocked sample, -1 if none
+    # [n_rays, 2] int32: (row, col) of the first blocked sample (may lie just outside the
+    # grid); (-1, -1) where ``hit`` is False.
+    hit_cell: jax.Array
 
 
 @struct.dataclass
