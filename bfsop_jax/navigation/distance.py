@@ -1,0 +1,260 @@
+"""Exact geodesic distance fields and matrices on the planning grid (SPEC 5, 8.1).
+
+The graph
+---------
+Nodes are the unblocked planning cells (``blocked`` is False). Every cell is joined to
+its 8 neighbours: an orthogonal move costs ``pc`` metres and a diagonal move
+``pc * sqrt(2)`` metres, pc = ``preset.plan_cell_size``. Both ends of a move must be
+unblocked, and a diagonal move is allowed only when both orthogonal cells it passes
+(the other two cells of its 2 x 2 square) are unblocked too: no corner cutting. The
+distance from a source is the shortest path length on this graph, in metres; ``inf``
+for blocked or unreachable cells.
+
+Sources inside the obstacle margin
+----------------------------------
+A point whose planning cell is blocked (for instance an agent standing inside the
+robot-radius margin of a freshly seen wall) is snapped to the nearest unblocked cell
+(Euclidean distance between cell centres, ties broken in a fixed order) within
+``SNAP_RADIUS`` cells; the distance from the point to that cell is counted as 0. With
+no unblocked cell in reach the point has no field (all ``inf``).
+
+The solver
+----------
+Gauss-Seidel line sweeps, batched over sources. One sweep visits the lines of the grid
+in order (rows top to bottom, rows bottom to top, columns left to right, columns right
+to left) and sets each cell to the minimum of itself and the three cells of the
+previous line it can be entered from (straight and the two diagonals). After a sweep
+every move of its 90 degree cone is relaxed, so a path made of moves of one cone is
+exact after one sweep; each change of cone along a path needs at most one more round
+of four sweeps. Sweeps repeat until three consecutive sweeps change nothing (together
+with the sweep before them that covers all 8 move directions), i.e. the Bellman
+optimality condition holds on every edge; since every value is always the length of a
+real walk, the result equals Dijkstra on the graph, up to float32 rounding of sums.
+
+Lines are processed by ``lax.scan`` over a [lines, sources, cells] array: each step is
+one wide vector operation over all sources, and the array is transposed between the
+row and the column sweeps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.navigation.grid import xy_to_plan_cell
+
+__all__ = [
+    "SNAP_RADIUS",
+    "distance_field",
+    "distance_fields",
+    "distance_fields_from_cells",
+    "distance_matrix",
+    "snap_to_free",
+]
+
+SNAP_RADIUS = 3  # planning cells searched around a blocked source (0.6 m at 0.2 m cells)
+_INF = np.float32(np.inf)
+
+
+def _snap_offsets(radius: int) -> np.ndarray:
+    """[K, 2] int32 (drow, dcol) within ``radius`` cells, nearest first (stable order)."""
+    r = np.arange(-radius, radius + 1)
+    off = np.stack(np.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)
+    d2 = (off**2).sum(-1)
+    keep = d2 <= radius * radius
+    off, d2 = off[keep], d2[keep]
+    return off[np.argsort(d2, kind="stable")].astype(np.int32)
+
+
+def snap_to_free(blocked: jax.Array, cells: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Nearest unblocked cell to each cell within ``SNAP_RADIUS``.
+
+    Args:
+        blocked: [Hp, Wp] bool planning map.
+        cells: [..., 2] int32 (row, col).
+    Returns:
+        ``(snapped [..., 2] int32, found [...] bool)``; ``snapped`` equals ``cells`` when
+        the cell itself is free or nothing free is in reach (then ``found`` is False).
+    """
+    hp, wp = blocked.shape
+    off = jnp.asarray(_snap_offsets(SNAP_RADIUS))  # [K, 2]
+    cand = cells[..., None, :] + off  # [..., K, 2]
+    inside = (
+        (cand[..., 0] >= 0) & (cand[..., 0] < hp) & (cand[..., 1] >= 0) & (cand[..., 1] < wp)
+    )
+    free = inside & ~blocked[jnp.clip(cand[..., 0], 0, hp - 1), jnp.clip(cand[..., 1], 0, wp - 1)]
+    first = jnp.argmax(free, axis=-1)
+    found = jnp.any(free, axis=-1)
+    snapped = jnp.take_along_axis(cand, first[..., None, None], axis=-2)[..., 0, :]
+    return jnp.where(found[..., None], snapped, cells).astype(jnp.int32), found
+
+
+def _entry_costs(blocked: jax.Array, pc: float) -> dict[str, jax.Array]:
+    """Cost of entering each cell by each kind of move, [Hp, Wp, 1] float32 (inf: no move).
+
+    ``orth``: from any orthogonal neighbour (the target must be free; the source is inf
+    when blocked). ``sq[a, b]``: the diagonal cost through the 2 x 2 square with top-left
+    cell (a - 1, b - 1), in a [Hp + 1, Wp + 1] array padded with inf.
+    """
+    free = ~blocked
+    orth = jnp.where(free, np.float32(pc), _INF)
+    square = free[:-1, :-1] & free[1:, 1:] & free[1:, :-1] & free[:-1, 1:]
+    sq = jnp.pad(jnp.where(square, np.float32(pc * math.sqrt(2.0)), _INF), 1, constant_values=_INF)
+    e = lambda a: a[:, :, None]
+    return {
+        "orth": e(orth),
+        # entering (i, j) from (i - 1, j - 1), (i - 1, j + 1), (i + 1, j - 1), (i + 1, j + 1)
+        "nw": e(sq[:-1, :-1]),
+        "ne": e(sq[:-1, 1:]),
+        "sw": e(sq[1:, :-1]),
+        "se": e(sq[1:, 1:]),
+    }
+
+
+def _sweep(dp: jax.Array, costs: dict, axis: int, reverse: bool, mark: bool) -> jax.Array:
+    """One Gauss-Seidel sweep over the lines of the padded field ``dp`` [Hp+2, Wp+2, S].
+
+    ``axis`` 0 sweeps rows (lines of constant i), 1 sweeps columns. Every line is set to the
+    min of itself and the three cells of the previous line it can be entered from.
+    Values are stored as ``-d`` when marked: with ``mark`` a cell is marked when this sweep
+    lowered it or it was already marked; without, every mark is cleared.
+    """
+    hp, wp = dp.shape[0] - 2, dp.shape[1] - 2
+    n_lines = hp if axis == 0 else wp
+    # previous line is on the lower side (forward) or upper side (reverse)
+    if axis == 0:
+        c_lo, c_hi = (costs["sw"], costs["se"]) if reverse else (costs["nw"], costs["ne"])
+    else:
+        c_lo, c_hi = (costs["ne"], costs["se"]) if reverse else (costs["nw"], costs["sw"])
+
+    def line_of(a, k, offset, size_other):
+        # line k of a [.., .., C] (index along `axis`), cells offset..offset+size_other
+        if axis == 0:
+            return lax.dynamic_slice(a, (k, offset, 0), (1, size_other, a.shape[2]))
+        return lax.dynamic_slice(a, (offset, k, 0), (size_other, 1, a.shape[2]))
+
+    n_other = wp if axis == 0 else hp
+
+    def step(t, dp):
+        k = (n_lines - 1 - t) if reverse else t  # line index, unpadded
+        prev = k + 2 if reverse else k  # padded index of the previous line
+        raw = line_of(dp, k + 1, 1, n_other)
+        cur = jnp.abs(raw)
+        p_mid = jnp.abs(line_of(dp, prev, 1, n_other))
+        p_lo = jnp.abs(line_of(dp, prev, 0, n_other))
+        p_hi = jnp.abs(line_of(dp, prev, 2, n_other))
+        o, lo, hi = (line_of(c, k, 0, n_other) for c in (costs["orth"], c_lo, c_hi))
+        new = jnp.minimum(jnp.minimum(cur, p_mid + o), jnp.minimum(p_lo + lo, p_hi + hi))
+        flagged = ((new < cur) | (raw < 0)) if mark else jnp.zeros_like(cur, bool)
+        start = (k + 1, 1, 0) if axis == 0 else (1, k + 1, 0)
+        return lax.dynamic_update_slice(dp, jnp.where(flagged, -new, new), start)
+
+    return lax.fori_loop(0, n_lines, step, dp)
+
+
+def _solve(blocked: jax.Array, src: jax.Array, src_ok: jax.Array, pc: float) -> jax.Array:
+    """Distance fields in padded cell-major layout: [Hp + 2, Wp + 2, S] float32.
+
+    ``src`` [S, 2] int32 free source cells, ``src_ok`` [S] bool (False: no source).
+    The one-cell border is padding (inf).
+    """
+    hp, wp = blocked.shape
+    s = src.shape[0]
+    costs = _entry_costs(blocked, pc)
+    d0 = jnp.full((hp + 2, wp + 2, s), _INF)
+    d0 = d0.at[src[:, 0] + 1, src[:, 1] + 1, jnp.arange(s)].set(jnp.where(src_ok, 0.0, _INF))
+
+    def round_(state):
+        dp, _ = state
+        # The first sweep clears all marks; the other three mark what they lower. No
+        # mark after a round: three sweeps after the first changed nothing -> converged.
+        dp = _sweep(dp, costs, axis=0, reverse=False, mark=False)
+        dp = _sweep(dp, costs, axis=0, reverse=True, mark=True)
+        dp = _sweep(dp, costs, axis=1, reverse=False, mark=True)
+        dp = _sweep(dp, costs, axis=1, reverse=True, mark=True)
+        return dp, jnp.any(dp < 0)
+
+    dp, _ = lax.while_loop(lambda st: st[1], round_, (d0, jnp.bool_(True)))
+    return dp
+
+
+def _check_blocked(blocked: jax.Array, preset: Preset) -> None:
+    if blocked.shape[-2:] != tuple(preset.plan_shape):
+        raise ValueError(
+            f"blocked map has shape {blocked.shape[-2:]}, preset {preset.name!r} expects "
+            f"plan_shape {preset.plan_shape}"
+        )
+
+
+def distance_fields_from_cells(
+    blocked: jax.Array, cells: jax.Array, valid: jax.Array, preset: Preset | str
+) -> jax.Array:
+    """Fields from source cells: [Hp, Wp] bool, [S, 2] int32, [S] bool -> [S, Hp, Wp].
+
+    Blocked source cells are snapped (module docstring); invalid sources give all-inf.
+    """
+    preset = get_preset(preset)
+    _check_blocked(blocked, preset)
+    blocked = jnp.asarray(blocked, bool)
+    src, found = snap_to_free(blocked, jnp.asarray(cells, jnp.int32))
+    dp = _solve(blocked, src, jnp.asarray(valid, bool) & found, preset.plan_cell_size)
+    return jnp.transpose(dp[1:-1, 1:-1], (2, 0, 1))
+
+
+def distance_fields(
+    blocked: jax.Array, sources_xy: jax.Array, preset: Preset | str
+) -> jax.Array:
+    """Geodesic distance (metres) from each source: [Hp, Wp] bool, [S, 2] xy -> [S, Hp, Wp].
+
+    ``inf`` where blocked or unreachable. Equals Dijkstra on the graph of the module
+    docstring up to float32 rounding.
+    """
+    preset = get_preset(preset)
+    sources_xy = jnp.asarray(sources_xy, jnp.float32)
+    if sources_xy.ndim != 2 or sources_xy.shape[-1] != 2:
+        raise ValueError(f"sources_xy must have shape [S, 2], got {sources_xy.shape}")
+    cells = xy_to_plan_cell(sources_xy, preset)
+    valid = jnp.ones(sources_xy.shape[0], bool)
+    return distance_fields_from_cells(blocked, cells, valid, preset)
+
+
+def distance_field(blocked: jax.Array, source_xy: jax.Array, preset: Preset | str) -> jax.Array:
+    """Geodesic distance (metres) from one point: [Hp, Wp] bool, [2] xy -> [Hp, Wp] float32."""
+    source_xy = jnp.asarray(source_xy, jnp.float32)
+    if source_xy.shape != (2,):
+        raise ValueError(f"source_xy must have shape [2], got {source_xy.shape}")
+    return distance_fields(blocked, source_xy[None], preset)[0]
+
+
+def distance_matrix(
+    blocked: jax.Array, points_xy: jax.Array, valid: jax.Array, preset: Preset | str
+) -> jax.Array:
+    """Pairwise geodesic distances: [Hp, Wp] bool, [S, 2] xy, [S] bool -> [S, S] float32.
+
+    ``d[a, b]`` is the field from point a read at point b's (snapped) cell, made exactly
+    symmetric with an elementwise min with its transpose; ``inf`` for invalid points and
+    unreachable pairs; 0 on the diagonal of valid points.
+    """
+    preset = get_preset(preset)
+    _check_blocked(blocked, preset)
+    points_xy = jnp.asarray(points_xy, jnp.float32)
+    if points_xy.ndim != 2 or points_xy.shape[-1] != 2:
+        raise ValueError(f"points_xy must have shape [S, 2], got {points_xy.shape}")
+    valid = jnp.asarray(valid, bool)
+    if valid.shape != points_xy.shape[:1]:
+        raise ValueError(f"valid must have shape {points_xy.shape[:1]}, got {valid.shape}")
+    blocked = jnp.asarray(blocked, bool)
+    cells, found = snap_to_free(blocked, xy_to_plan_cell(points_xy, preset))
+    ok = valid & found
+    dp = _solve(blocked, cells, ok, preset.plan_cell_size)  # [Hp + 2, Wp + 2, S]
+    m = dp[cells[:, 0] + 1, cells[:, 1] + 1].T  # m[a, b] = field a at cell b
+    m = jnp.minimum(m, m.T)
+    pair_ok = ok[:, None] & ok[None, :]
+    m = jnp.where(pair_ok, m, _INF)
+    eye = jnp.eye(points_xy.shape[0], dtype=bool)
+    return jnp.where(eye & valid[:, None], 0.0, m)
