@@ -1,0 +1,27 @@
+"""Navigation on the planning grid: inflation, geodesic distances, path following, frontiers."""
+
+from bfsop_jax.navigation.distance import (
+    distance_field,
+    distance_fields,
+    distance_fields_from_cells,
+    distance_matrix,
+    snap_to_free,
+)
+from bfsop_jax.navigation.grid import (
+    plan_cell_to_xy,
+    planning_blocked,
+    true_blocked,
+    xy_to_plan_cell,
+)
+
+__all__ = [
+    "distance_field",
+    "distance_fields",
+    "distance_fields_from_cells",
+    "distance_matrix",
+    "plan_cell_to_xy",
+    "planning_blocked",
+    "snap_to_free",
+    "true_blocked",
+    "xy_to_plan_cell",
+]
