@@ -13,8 +13,13 @@ from bfsop_jax.navigation.grid import (
     true_blocked,
     xy_to_plan_cell,
 )
+from bfsop_jax.navigation.path import advance, default_max_moves, is_traversable, next_cell
 
 __all__ = [
+    "advance",
+    "default_max_moves",
+    "is_traversable",
+    "next_cell",
     "distance_field",
     "distance_fields",
     "distance_fields_from_cells",
