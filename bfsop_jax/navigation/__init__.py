@@ -7,6 +7,14 @@ from bfsop_jax.navigation.distance import (
     distance_matrix,
     snap_to_free,
 )
+from bfsop_jax.navigation.frontiers import (
+    MIN_CLUSTER_CELLS,
+    Frontiers,
+    cluster_frontier_cells,
+    frontier_cells,
+    frontier_clusters,
+    nearest_frontier,
+)
 from bfsop_jax.navigation.grid import (
     plan_cell_to_xy,
     planning_blocked,
@@ -16,6 +24,12 @@ from bfsop_jax.navigation.grid import (
 from bfsop_jax.navigation.path import advance, default_max_moves, is_traversable, next_cell
 
 __all__ = [
+    "MIN_CLUSTER_CELLS",
+    "Frontiers",
+    "cluster_frontier_cells",
+    "frontier_cells",
+    "frontier_clusters",
+    "nearest_frontier",
     "advance",
     "default_max_moves",
     "is_traversable",

@@ -1,0 +1,163 @@
+"""Frontiers: known-free planning cells next to unknown space, and their clusters (SPEC 6).
+
+Planning-cell states from the fine belief (f x f fine cells per planning cell,
+f = ``plan_factor``; "known" means ``|log-odds| > logodds_known``):
+
+- *free*: a strict majority of its fine cells known free and none known occupied;
+- *unknown*: at least half of its fine cells unknown and none known occupied.
+
+A **frontier cell** is a free planning cell, unblocked on the optimistic planning map
+(so the robot can stand there), with an unknown planning cell among its 4 neighbours.
+Clusters are the 8-connected components of frontier cells (label propagation with
+pointer jumping, run to convergence). Clusters of fewer than ``MIN_CLUSTER_CELLS`` cells
+are dropped as noise; the ``preset.max_frontier_clusters`` largest are kept, largest
+first (ties: lower row-major index of the cluster's first cell). Each is represented by
+its member cell nearest to the cluster's centroid, so the goal is a frontier cell
+itself, never a centroid inside a wall.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from jax import lax
+
+from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.navigation.grid import plan_cell_to_xy, planning_blocked, xy_to_plan_cell
+
+__all__ = [
+    "MIN_CLUSTER_CELLS",
+    "Frontiers",
+    "cluster_frontier_cells",
+    "frontier_cells",
+    "frontier_clusters",
+    "nearest_frontier",
+]
+
+MIN_CLUSTER_CELLS = 3  # planning cells (3 x 0.2 m): smaller clusters are sensing noise
+
+
+@struct.dataclass
+class Frontiers:
+    """Up to F = ``preset.max_frontier_clusters`` frontier clusters, largest first."""
+
+    xy: jax.Array  # [F, 2] float32: representative frontier cell centre (metres)
+    size: jax.Array  # [F] int32: cluster size in planning cells (0 for empty slots)
+    valid: jax.Array  # [F] bool: slot holds a cluster
+
+
+def _block_counts(mask: jax.Array, preset: Preset) -> jax.Array:
+    """[H, W] bool fine mask -> [Hp, Wp] int32 count per planning cell (outside: 0)."""
+    h, w = mask.shape
+    f = preset.plan_factor
+    hp, wp = preset.plan_shape
+    m = jnp.pad(mask.astype(jnp.int32), ((0, hp * f - h), (0, wp * f - w)))
+    return m.reshape(hp, f, wp, f).sum(axis=(1, 3))
+
+
+def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
+    """Frontier planning cells of a belief: [H, W] float32 log-odds -> [Hp, Wp] bool."""
+    preset = get_preset(preset)
+    if belief.shape[-2:] != tuple(preset.grid_shape):
+        raise ValueError(
+            f"belief has shape {belief.shape}, preset {preset.name!r} expects grid_shape "
+            f"{preset.grid_shape}"
+        )
+    k = preset.logodds_known
+    n = preset.plan_factor**2
+    n_free = _block_counts(belief < -k, preset)
+    # fine cells beyond the map edge (partial planning cells) count as occupied
+    n_occ = _block_counts(belief > k, preset) + n - _block_counts(jnp.ones(belief.shape, bool),
+                                                                  preset)
+    n_unknown = n - n_free - n_occ
+    free = (2 * n_free > n) & (n_occ == 0)
+    unknown = (2 * n_unknown >= n) & (n_occ == 0)
+    # planning cells beyond the map edge are not unknown space
+    up = jnp.pad(unknown, 1, constant_values=False)
+    next_to_unknown = up[:-2, 1:-1] | up[2:, 1:-1] | up[1:-1, :-2] | up[1:-1, 2:]
+    return free & next_to_unknown & ~planning_blocked(belief, preset)
+
+
+def _component_labels(cells: jax.Array) -> jax.Array:
+    """8-connected components: [Hp, Wp] bool -> [Hp, Wp] int32 smallest member index
+    (row-major) of each cell's component; ``Hp * Wp`` for non-members."""
+    hp, wp = cells.shape
+    big = hp * wp
+    label0 = jnp.where(cells, jnp.arange(big, dtype=jnp.int32).reshape(hp, wp), big)
+
+    def neighbour_min(lab):
+        p = jnp.pad(lab, 1, constant_values=big)
+        out = lab
+        for di in (0, 1, 2):
+            for dj in (0, 1, 2):
+                out = jnp.minimum(out, p[di : di + hp, dj : dj + wp])
+        return jnp.where(cells, out, big)
+
+    def body(state):
+        lab, _ = state
+        new = neighbour_min(lab)
+        # pointer jumping: a label is a member of the same component with a smaller index
+        flat = jnp.concatenate([new.reshape(-1), jnp.array([big], jnp.int32)])
+        new = flat[new]
+        return new, jnp.any(new != lab)
+
+    lab, _ = lax.while_loop(lambda s: s[1], body, (label0, jnp.bool_(True)))
+    return lab
+
+
+def cluster_frontier_cells(
+    cells: jax.Array, preset: Preset | str, min_size: int = MIN_CLUSTER_CELLS
+) -> Frontiers:
+    """Cluster a [Hp, Wp] bool frontier mask into :class:`Frontiers` (module docstring)."""
+    preset = get_preset(preset)
+    hp, wp = cells.shape
+    n = hp * wp
+    f_max = preset.max_frontier_clusters
+    lab = _component_labels(cells).reshape(-1)
+    member = lab < n
+    seg = jnp.where(member, lab, n)  # non-members go to a dump segment
+    ii, jj = jnp.divmod(jnp.arange(n, dtype=jnp.int32), wp)
+    size = jax.ops.segment_sum(member.astype(jnp.int32), seg, num_segments=n + 1)[:n]
+    sum_i = jax.ops.segment_sum(jnp.where(member, ii, 0).astype(jnp.float32), seg, n + 1)
+    sum_j = jax.ops.segment_sum(jnp.where(member, jj, 0).astype(jnp.float32), seg, n + 1)
+    cnt = jnp.maximum(size, 1).astype(jnp.float32)
+    ci, cj = sum_i[:n] / cnt, sum_j[:n] / cnt
+    # member nearest to its cluster's centroid (ties: lowest index)
+    lab_c = jnp.minimum(lab, n - 1)
+    d2 = jnp.where(member, (ii - ci[lab_c]) ** 2 + (jj - cj[lab_c]) ** 2, jnp.inf)
+    best = jax.ops.segment_min(d2, seg, num_segments=n + 1)[:n]
+    is_best = member & (d2 <= best[lab_c])
+    rep = jax.ops.segment_min(jnp.where(is_best, jnp.arange(n, dtype=jnp.int32), n), seg,
+                              num_segments=n + 1)[:n]
+    root = member & (lab == jnp.arange(n))
+    key = jnp.where(root & (size >= min_size), size, -1)
+    top_size, top_root = lax.top_k(key, f_max)
+    valid = top_size >= min_size
+    rep_cell = jnp.stack(jnp.divmod(rep[top_root], wp), axis=-1)
+    xy = jnp.where(valid[:, None], plan_cell_to_xy(rep_cell, preset), 0.0)
+    return Frontiers(xy=xy, size=jnp.where(valid, top_size, 0).astype(jnp.int32), valid=valid)
+
+
+def frontier_clusters(belief: jax.Array, preset: Preset | str) -> Frontiers:
+    """Frontier clusters of a belief ([H, W] float32 log-odds), largest first."""
+    preset = get_preset(preset)
+    return cluster_frontier_cells(frontier_cells(belief, preset), preset)
+
+
+def nearest_frontier(
+    frontiers: Frontiers, field_from_agent: jax.Array, preset: Preset | str
+) -> tuple[jax.Array, jax.Array]:
+    """The geodesically nearest frontier: ``(index int32, distance float32 metres)``.
+
+    ``field_from_agent`` is the [Hp, Wp] distance field from the agent. Returns
+    ``(-1, inf)`` when no valid frontier is reachable.
+    """
+    preset = get_preset(preset)
+    cell = xy_to_plan_cell(frontiers.xy, preset)
+    d = jnp.where(frontiers.valid, field_from_agent[cell[:, 0], cell[:, 1]], jnp.inf)
+    k = jnp.argmin(d).astype(jnp.int32)
+    dist = d[k]
+    found = jnp.isfinite(dist)
+    return jnp.where(found, k, -1), jnp.where(found, dist, np.float32(np.inf))

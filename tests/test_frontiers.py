@@ -1,0 +1,162 @@
+"""Frontier cells, clusters and the nearest frontier on hand-made beliefs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage
+
+from bfsop_jax.config import get_preset
+from bfsop_jax.navigation import (
+    cluster_frontier_cells,
+    distance_field,
+    frontier_cells,
+    frontier_clusters,
+    nearest_frontier,
+    planning_blocked,
+    xy_to_plan_cell,
+)
+
+PRESET = get_preset("smoke")
+FREE, OCC = -2.0, 2.0
+
+
+def walled_room(rows, cols) -> np.ndarray:
+    """Belief: unknown everywhere, a known-free room with a 2-cell known wall ring."""
+    h, w = PRESET.grid_shape
+    b = np.zeros((h, w), np.float32)
+    r0, r1 = rows
+    c0, c1 = cols
+    b[r0 - 2 : r1 + 2, c0 - 2 : c1 + 2] = OCC
+    b[r0:r1, c0:c1] = FREE
+    return b
+
+
+def one_door_room() -> np.ndarray:
+    b = walled_room((20, 80), (20, 100))
+    b[40:50, 100:102] = FREE  # 1 m door in the right wall, unknown beyond
+    return b
+
+
+_clusters = jax.jit(frontier_clusters, static_argnums=1)
+
+
+def test_one_door_gives_one_frontier_in_the_door():
+    b = one_door_room()
+    cells = np.asarray(frontier_cells(b, PRESET))
+    assert cells.any()
+    rows, cols = np.nonzero(cells)
+    assert set(cols) == {50} and rows.min() >= 20 and rows.max() <= 24  # the door's cells
+    fr = _clusters(b, PRESET)
+    assert int(fr.valid.sum()) == 1
+    assert int(fr.size[0]) == cells.sum()
+    x, y = np.asarray(fr.xy[0])
+    assert 9.9 < x < 10.3 and 4.0 < y < 5.0  # in the doorway
+    assert cells[tuple(np.asarray(xy_to_plan_cell(fr.xy[0], PRESET)))]  # a frontier cell
+
+
+def test_fully_known_map_has_no_frontier():
+    b = one_door_room()
+    b[b == 0.0] = FREE  # everything beyond the door is now known free
+    assert not np.asarray(frontier_cells(b, PRESET)).any()
+    fr = _clusters(b, PRESET)
+    assert not np.asarray(fr.valid).any()
+    index, dist = nearest_frontier(fr, jnp.zeros(PRESET.plan_shape), PRESET)
+    assert int(index) == -1 and np.isinf(float(dist))
+
+
+def two_door_room() -> tuple[np.ndarray, np.ndarray]:
+    """Door A 2 m left of the agent behind an internal wall; door B 5 m right, in the open."""
+    b = walled_room((10, 110), (10, 80))
+    b[55:65, 8:10] = FREE  # door A (left wall)
+    b[55:65, 80:82] = FREE  # door B (right wall)
+    b[10:100, 18:20] = OCC  # internal wall; the way to A goes round its far end
+    agent = np.array([3.0, 6.0], np.float32)
+    return b, agent
+
+
+def test_nearest_frontier_is_geodesic_not_euclidean():
+    b, agent = two_door_room()
+    fr = _clusters(b, PRESET)
+    assert int(fr.valid.sum()) == 2
+    xy = np.asarray(fr.xy)[:2]
+    field = distance_field(planning_blocked(b, PRESET), agent, PRESET)
+    index, dist = nearest_frontier(fr, field, PRESET)
+    euclid = np.linalg.norm(xy - agent, axis=1)
+    door_b = int(np.argmax(xy[:, 0]))
+    assert int(index) == door_b
+    assert int(np.argmin(euclid)) != door_b
+    cell = np.asarray(xy_to_plan_cell(xy[door_b], PRESET))
+    np.testing.assert_allclose(float(dist), float(np.asarray(field)[cell[0], cell[1]]))
+    assert 4.5 < float(dist) < 5.5
+
+
+def test_unreachable_frontier_is_not_chosen():
+    b, agent = two_door_room()
+    fr = _clusters(b, PRESET)
+    index, dist = nearest_frontier(fr, jnp.full(PRESET.plan_shape, jnp.inf), PRESET)
+    assert int(index) == -1 and np.isinf(float(dist))
+
+
+def reference_clusters(mask: np.ndarray, min_size: int):
+    lab, n = ndimage.label(mask, structure=np.ones((3, 3)))
+    out = []
+    for k in range(1, n + 1):
+        members = np.argwhere(lab == k)
+        if len(members) >= min_size:
+            out.append(members)
+    return out
+
+
+def test_clusters_match_scipy_components():
+    rng = np.random.default_rng(0)
+    hp, wp = PRESET.plan_shape
+    mask = ndimage.binary_opening(rng.random((hp, wp)) < 0.35) & (rng.random((hp, wp)) < 0.8)
+    preset = dataclasses.replace(PRESET, max_frontier_clusters=512)
+    fr = jax.jit(cluster_frontier_cells, static_argnums=1)(mask, preset)
+    ref = reference_clusters(mask, 3)
+    assert int(fr.valid.sum()) == len(ref) > 10
+    sizes = np.asarray(fr.size)[np.asarray(fr.valid)]
+    assert list(sizes) == sorted((len(m) for m in ref), reverse=True)
+    cells = np.asarray(xy_to_plan_cell(fr.xy, preset))[np.asarray(fr.valid)]
+    by_cell = {tuple(c): m for m in ref for c in map(tuple, m)}
+    for c, s in zip(cells, sizes, strict=True):
+        members = by_cell[tuple(c)]  # the representative is a member of a cluster
+        assert len(members) == s
+        d2 = ((members - members.mean(0)) ** 2).sum(1)
+        np.testing.assert_allclose(((c - members.mean(0)) ** 2).sum(), d2.min(), rtol=1e-5)
+
+
+def test_keeps_the_largest_clusters():
+    hp, wp = PRESET.plan_shape
+    mask = np.zeros((hp, wp), bool)
+    mask[5, 5:8] = True  # 3
+    mask[20, 5:10] = True  # 5
+    mask[40, 5:7] = True  # 2: noise
+    mask[50, 5:12] = True  # 7
+    preset = dataclasses.replace(PRESET, max_frontier_clusters=2)
+    fr = cluster_frontier_cells(jnp.asarray(mask), preset)
+    assert list(np.asarray(fr.size)) == [7, 5] and np.asarray(fr.valid).all()
+    preset = dataclasses.replace(PRESET, max_frontier_clusters=4)
+    fr = cluster_frontier_cells(jnp.asarray(mask), preset)
+    assert list(np.asarray(fr.size)) == [7, 5, 3, 0]
+    assert list(np.asarray(fr.valid)) == [True, True, True, False]
+
+
+def test_no_retrace_on_new_beliefs():
+    @jax.jit
+    @chex.assert_max_traces(n=1)
+    def explore_target(belief, agent):
+        fr = frontier_clusters(belief, PRESET)
+        field = distance_field(planning_blocked(belief, PRESET), agent, PRESET)
+        return nearest_frontier(fr, field, PRESET)
+
+    b1 = one_door_room()
+    b2, agent = two_door_room()
+    i1, _ = explore_target(b1, jnp.array([5.0, 5.0]))
+    i2, _ = explore_target(b2, jnp.asarray(agent))
+    assert int(i1) == 0 and int(i2) >= 0
