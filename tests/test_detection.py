@@ -293,6 +293,8 @@ def test_bad_inputs_raise_clear_errors():
         observe(house, jnp.zeros(2), ROOM)
     with pytest.raises(ValueError, match="grid_shape"):
         observe(house, pose(1.0, 1.0), get_preset("smoke"))
+    with pytest.raises(ValueError, match="cell_size"):
+        observe(house.replace(cell_size=0.2), pose(1.0, 1.0), ROOM)
     det = observe(house, pose(3.0, 3.0), ROOM)
     with pytest.raises(ValueError, match="prior must have shape"):
         landmarks_of_interest(det, house, jnp.ones((N_TARGETS, N_TARGETS)), jnp.int32(0), ROOM)

@@ -71,6 +71,10 @@ def _check_inputs(house: House, pose: jax.Array, preset: Preset) -> None:
             f"house.occupied has shape {tuple(house.occupied.shape)}, "
             f"expected preset.grid_shape {preset.grid_shape}"
         )
+    if not math.isclose(house.cell_size, preset.cell_size):
+        raise ValueError(
+            f"house.cell_size {house.cell_size} differs from preset.cell_size {preset.cell_size}"
+        )
     m = house.object_category.shape[0]
     for name in ("object_xy", "object_size", "object_half_extent", "object_parent"):
         n = getattr(house, name).shape[0]

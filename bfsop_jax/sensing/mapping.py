@@ -68,6 +68,7 @@ __all__ = [
     "known_occupied",
     "quantised_heading",
     "scan_cells",
+    "subcell_origin",
     "unknown",
     "update_belief",
 ]
