@@ -280,3 +280,24 @@ def test_vmap_over_maps_and_no_retrace():
 
     for k in range(3):
         field(jnp.asarray(maps[k]), jnp.asarray(cells_to_xy(srcs[k])[0])).block_until_ready()
+
+
+def test_nested_vmap_folds_batches_exactly():
+    rng = np.random.default_rng(12)
+    maps = np.stack([random_blocked(rng, 0.2) for _ in range(2)])
+    srcs = np.stack([[random_free_cells(rng, b, 3) for _ in range(2)] for b in maps])  # [2,2,3,2]
+    ok = np.ones((2, 2, 3), bool)
+    ok[1, 0, 2] = False
+    fn = lambda b, c, v: distance_fields_from_cells(b, c, v, PRESET)
+    # outer vmap over maps, inner over source sets on the same map
+    got = jax.jit(jax.vmap(jax.vmap(fn, in_axes=(None, 0, 0))))(maps, srcs, ok)
+    assert got.shape == (2, 2, 3) + PRESET.plan_shape
+    for a in range(2):
+        for b in range(2):
+            want = dijkstra_fields(maps[a], srcs[a, b])
+            want[~ok[a, b]] = np.inf
+            assert_fields_equal(got[a, b], want)
+    # a shared map with a batch of single sources equals one multi-source call
+    xy = cells_to_xy(srcs[0, 0])
+    single = jax.vmap(lambda p: distance_field(jnp.asarray(maps[0]), p, PRESET))(xy)
+    assert_fields_equal(single, dijkstra_fields(maps[0], srcs[0, 0]))

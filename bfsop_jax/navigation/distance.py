@@ -38,6 +38,7 @@ row and the column sweeps.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -55,10 +56,13 @@ __all__ = [
     "distance_fields_from_cells",
     "distance_matrix",
     "snap_to_free",
+    "sweep_rounds",
 ]
 
 SNAP_RADIUS = 3  # planning cells searched around a blocked source (0.6 m at 0.2 m cells)
 _INF = np.float32(np.inf)
+# one round of sweeps: (axis, reverse); rows down, rows up, columns right, columns left
+_ROUND = ((0, False), (0, True), (1, False), (1, True))
 
 
 def _snap_offsets(radius: int) -> np.ndarray:
@@ -95,29 +99,32 @@ def snap_to_free(blocked: jax.Array, cells: jax.Array) -> tuple[jax.Array, jax.A
 
 
 def _entry_costs(blocked: jax.Array, pc: float) -> dict[str, jax.Array]:
-    """Cost of entering each cell by each kind of move, [Hp, Wp, 1] float32 (inf: no move).
+    """Cost of entering each cell by each kind of move (inf: move not allowed).
 
-    ``orth``: from any orthogonal neighbour (the target must be free; the source is inf
-    when blocked). ``sq[a, b]``: the diagonal cost through the 2 x 2 square with top-left
-    cell (a - 1, b - 1), in a [Hp + 1, Wp + 1] array padded with inf.
+    ``blocked`` [M, Hp, Wp] (M maps) -> each cost [Hp, Wp, M, 1], laid out like the
+    field's lanes (maps, sources). ``orth``: from an orthogonal neighbour (the target must
+    be free; a blocked source holds inf anyway). The diagonal costs go through the 2 x 2
+    square shared by the two cells, which must be entirely free.
     """
     free = ~blocked
     orth = jnp.where(free, np.float32(pc), _INF)
-    square = free[:-1, :-1] & free[1:, 1:] & free[1:, :-1] & free[:-1, 1:]
-    sq = jnp.pad(jnp.where(square, np.float32(pc * math.sqrt(2.0)), _INF), 1, constant_values=_INF)
-    e = lambda a: a[:, :, None]
+    square = free[:, :-1, :-1] & free[:, 1:, 1:] & free[:, 1:, :-1] & free[:, :-1, 1:]
+    diag = jnp.where(square, np.float32(pc * math.sqrt(2.0)), _INF)
+    sq = jnp.pad(diag, ((0, 0), (1, 1), (1, 1)), constant_values=_INF)
+    # sq[:, a, b]: square with top-left cell (a - 1, b - 1)
+    lanes = lambda a: jnp.transpose(a, (1, 2, 0))[..., None]
     return {
-        "orth": e(orth),
+        "orth": lanes(orth),
         # entering (i, j) from (i - 1, j - 1), (i - 1, j + 1), (i + 1, j - 1), (i + 1, j + 1)
-        "nw": e(sq[:-1, :-1]),
-        "ne": e(sq[:-1, 1:]),
-        "sw": e(sq[1:, :-1]),
-        "se": e(sq[1:, 1:]),
+        "nw": lanes(sq[:, :-1, :-1]),
+        "ne": lanes(sq[:, :-1, 1:]),
+        "sw": lanes(sq[:, 1:, :-1]),
+        "se": lanes(sq[:, 1:, 1:]),
     }
 
 
 def _sweep(dp: jax.Array, costs: dict, axis: int, reverse: bool, mark: bool) -> jax.Array:
-    """One Gauss-Seidel sweep over the lines of the padded field ``dp`` [Hp+2, Wp+2, S].
+    """One Gauss-Seidel sweep over the lines of the padded field ``dp`` [Hp+2, Wp+2, M, S].
 
     ``axis`` 0 sweeps rows (lines of constant i), 1 sweeps columns. Every line is set to the
     min of itself and the three cells of the previous line it can be entered from.
@@ -125,62 +132,113 @@ def _sweep(dp: jax.Array, costs: dict, axis: int, reverse: bool, mark: bool) -> 
     lowered it or it was already marked; without, every mark is cleared.
     """
     hp, wp = dp.shape[0] - 2, dp.shape[1] - 2
-    n_lines = hp if axis == 0 else wp
-    # previous line is on the lower side (forward) or upper side (reverse)
+    n_lines, n_other = (hp, wp) if axis == 0 else (wp, hp)
+    # the previous line is on the lower side (forward sweep) or the upper side (reverse)
     if axis == 0:
         c_lo, c_hi = (costs["sw"], costs["se"]) if reverse else (costs["nw"], costs["ne"])
     else:
         c_lo, c_hi = (costs["ne"], costs["se"]) if reverse else (costs["nw"], costs["sw"])
 
-    def line_of(a, k, offset, size_other):
-        # line k of a [.., .., C] (index along `axis`), cells offset..offset+size_other
+    def line_of(a, k, offset):
+        # line k of a (index along `axis`), cells offset .. offset + n_other - 1
+        lanes = a.shape[2:]
+        zeros = (0,) * len(lanes)
         if axis == 0:
-            return lax.dynamic_slice(a, (k, offset, 0), (1, size_other, a.shape[2]))
-        return lax.dynamic_slice(a, (offset, k, 0), (size_other, 1, a.shape[2]))
-
-    n_other = wp if axis == 0 else hp
+            return lax.dynamic_slice(a, (k, offset, *zeros), (1, n_other, *lanes))
+        return lax.dynamic_slice(a, (offset, k, *zeros), (n_other, 1, *lanes))
 
     def step(t, dp):
         k = (n_lines - 1 - t) if reverse else t  # line index, unpadded
         prev = k + 2 if reverse else k  # padded index of the previous line
-        raw = line_of(dp, k + 1, 1, n_other)
+        raw = line_of(dp, k + 1, 1)
+        # the previous line was written earlier in this sweep: unmarked in a clearing sweep
+        fix = jnp.abs if mark else (lambda a: a)
+        p_mid, p_lo, p_hi = (fix(line_of(dp, prev, off)) for off in (1, 0, 2))
+        o, lo, hi = (line_of(c, k, 0) for c in (costs["orth"], c_lo, c_hi))
+        best = jnp.minimum(p_mid + o, jnp.minimum(p_lo + lo, p_hi + hi))
         cur = jnp.abs(raw)
-        p_mid = jnp.abs(line_of(dp, prev, 1, n_other))
-        p_lo = jnp.abs(line_of(dp, prev, 0, n_other))
-        p_hi = jnp.abs(line_of(dp, prev, 2, n_other))
-        o, lo, hi = (line_of(c, k, 0, n_other) for c in (costs["orth"], c_lo, c_hi))
-        new = jnp.minimum(jnp.minimum(cur, p_mid + o), jnp.minimum(p_lo + lo, p_hi + hi))
-        flagged = ((new < cur) | (raw < 0)) if mark else jnp.zeros_like(cur, bool)
-        start = (k + 1, 1, 0) if axis == 0 else (1, k + 1, 0)
-        return lax.dynamic_update_slice(dp, jnp.where(flagged, -new, new), start)
+        new = jnp.minimum(cur, best)
+        if mark:  # marked: lowered now, or earlier in this round
+            out = jnp.where((best < cur) | (raw < 0), -new, new)
+        else:
+            out = new
+        start = (k + 1, 1) if axis == 0 else (1, k + 1)
+        return lax.dynamic_update_slice(dp, out, (*start, 0, 0))
 
     return lax.fori_loop(0, n_lines, step, dp)
 
 
-def _solve(blocked: jax.Array, src: jax.Array, src_ok: jax.Array, pc: float) -> jax.Array:
-    """Distance fields in padded cell-major layout: [Hp + 2, Wp + 2, S] float32.
+def _solve_lanes(blocked: jax.Array, src: jax.Array, src_ok: jax.Array, pc: float):
+    """Fields of S sources on each of M maps: padded [Hp + 2, Wp + 2, M, S] float32.
 
-    ``src`` [S, 2] int32 free source cells, ``src_ok`` [S] bool (False: no source).
-    The one-cell border is padding (inf).
+    ``blocked`` [M, Hp, Wp] bool, ``src`` [M, S, 2] int32 free source cells, ``src_ok``
+    [M, S] bool (False: no source). Also returns the number of rounds run (int32).
     """
-    hp, wp = blocked.shape
-    s = src.shape[0]
+    m, hp, wp = blocked.shape
+    s = src.shape[1]
     costs = _entry_costs(blocked, pc)
-    d0 = jnp.full((hp + 2, wp + 2, s), _INF)
-    d0 = d0.at[src[:, 0] + 1, src[:, 1] + 1, jnp.arange(s)].set(jnp.where(src_ok, 0.0, _INF))
+    mi, si = jnp.meshgrid(jnp.arange(m), jnp.arange(s), indexing="ij")
+    d0 = jnp.full((hp + 2, wp + 2, m, s), _INF)
+    d0 = d0.at[src[..., 0] + 1, src[..., 1] + 1, mi, si].set(jnp.where(src_ok, 0.0, _INF))
 
     def round_(state):
-        dp, _ = state
+        dp, _, rounds = state
         # The first sweep clears all marks; the other three mark what they lower. No
         # mark after a round: three sweeps after the first changed nothing -> converged.
-        dp = _sweep(dp, costs, axis=0, reverse=False, mark=False)
-        dp = _sweep(dp, costs, axis=0, reverse=True, mark=True)
-        dp = _sweep(dp, costs, axis=1, reverse=False, mark=True)
-        dp = _sweep(dp, costs, axis=1, reverse=True, mark=True)
-        return dp, jnp.any(dp < 0)
+        for k, (axis, reverse) in enumerate(_ROUND):
+            dp = _sweep(dp, costs, axis=axis, reverse=reverse, mark=k > 0)
+        return dp, jnp.min(dp) < 0, rounds + 1  # min: faster than any()
 
-    dp, _ = lax.while_loop(lambda st: st[1], round_, (d0, jnp.bool_(True)))
-    return dp
+    dp, _, rounds = lax.while_loop(lambda st: st[1], round_, (d0, jnp.bool_(True), jnp.int32(0)))
+    return dp, rounds
+
+
+@functools.cache
+def _lane_solver(pc: float):
+    """``_solve_lanes`` whose ``jax.vmap`` folds the batch into the lanes.
+
+    Plain vmap would put the batch in front of the grid axes, so every line step would
+    touch many small strided pieces; folding it into the innermost (lane) axes keeps each
+    step one wide contiguous vector operation. A batch over sources only (a shared map)
+    is folded into the sources, so the map's costs are not repeated.
+    """
+
+    @jax.custom_batching.custom_vmap
+    def solve(blocked, src, src_ok):
+        return _solve_lanes(blocked, src, src_ok, pc)
+
+    @solve.def_vmap
+    def _batched(axis_size, in_batched, blocked, src, src_ok):
+        b_map, b_src, b_ok = in_batched
+        a = axis_size
+        m, hp, wp = blocked.shape[-3:]
+        s = src.shape[-2]
+        if b_map:  # A * M maps
+            src = src if b_src else jnp.broadcast_to(src, (a, *src.shape))
+            src_ok = src_ok if b_ok else jnp.broadcast_to(src_ok, (a, *src_ok.shape))
+            dp, rounds = solve(blocked.reshape(a * m, hp, wp), src.reshape(a * m, s, 2),
+                               src_ok.reshape(a * m, s))
+            dp = dp.reshape(hp + 2, wp + 2, a, m, s)
+        else:  # one map set, A * S sources: [A, M, S] -> [M, A * S]
+            src = src if b_src else jnp.broadcast_to(src, (a, *src.shape))
+            src_ok = src_ok if b_ok else jnp.broadcast_to(src_ok, (a, *src_ok.shape))
+            src = jnp.moveaxis(src, 0, 1).reshape(m, a * s, 2)
+            src_ok = jnp.moveaxis(src_ok, 0, 1).reshape(m, a * s)
+            dp, rounds = solve(blocked, src, src_ok)
+            dp = jnp.moveaxis(dp.reshape(hp + 2, wp + 2, m, a, s), 3, 2)
+        return (jnp.moveaxis(dp, 2, 0), rounds), (True, False)
+
+    return solve
+
+
+def _solve(blocked: jax.Array, src: jax.Array, src_ok: jax.Array, pc: float):
+    """Fields of S sources on one map: padded [Hp + 2, Wp + 2, S] float32, and rounds.
+
+    ``blocked`` [Hp, Wp], ``src`` [S, 2] free cells, ``src_ok`` [S]. Vmappable with the
+    batch folded into the lanes (see ``_lane_solver``).
+    """
+    dp, rounds = _lane_solver(float(pc))(blocked[None], src[None], src_ok[None])
+    return dp[:, :, 0], rounds
 
 
 def _check_blocked(blocked: jax.Array, preset: Preset) -> None:
@@ -202,8 +260,22 @@ def distance_fields_from_cells(
     _check_blocked(blocked, preset)
     blocked = jnp.asarray(blocked, bool)
     src, found = snap_to_free(blocked, jnp.asarray(cells, jnp.int32))
-    dp = _solve(blocked, src, jnp.asarray(valid, bool) & found, preset.plan_cell_size)
+    dp, _ = _solve(blocked, src, jnp.asarray(valid, bool) & found, preset.plan_cell_size)
     return jnp.transpose(dp[1:-1, 1:-1], (2, 0, 1))
+
+
+def sweep_rounds(
+    blocked: jax.Array, cells: jax.Array, valid: jax.Array, preset: Preset | str
+) -> jax.Array:
+    """Diagnostic: rounds of four sweeps the solver runs for these sources (int32).
+
+    The last round is the one that finds nothing left to change.
+    """
+    preset = get_preset(preset)
+    _check_blocked(blocked, preset)
+    blocked = jnp.asarray(blocked, bool)
+    src, found = snap_to_free(blocked, jnp.asarray(cells, jnp.int32))
+    return _solve(blocked, src, jnp.asarray(valid, bool) & found, preset.plan_cell_size)[1]
 
 
 def distance_fields(
@@ -251,7 +323,7 @@ def distance_matrix(
     blocked = jnp.asarray(blocked, bool)
     cells, found = snap_to_free(blocked, xy_to_plan_cell(points_xy, preset))
     ok = valid & found
-    dp = _solve(blocked, cells, ok, preset.plan_cell_size)  # [Hp + 2, Wp + 2, S]
+    dp, _ = _solve(blocked, cells, ok, preset.plan_cell_size)  # [Hp + 2, Wp + 2, S]
     m = dp[cells[:, 0] + 1, cells[:, 1] + 1].T  # m[a, b] = field a at cell b
     m = jnp.minimum(m, m.T)
     pair_ok = ok[:, None] & ok[None, :]
