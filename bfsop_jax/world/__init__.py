@@ -8,6 +8,7 @@ from bfsop_jax.world.constants import (
     category_id,
     target_id,
 )
+from bfsop_jax.world.generator import generate_house
 from bfsop_jax.world.types import House
 
 __all__ = [
@@ -17,5 +18,6 @@ __all__ = [
     "TARGET_NAMES",
     "House",
     "category_id",
+    "generate_house",
     "target_id",
 ]

@@ -1,0 +1,136 @@
+"""Figures. Each ``plot_*`` function is independent: it draws one picture of one thing,
+onto a given Matplotlib ``ax`` or a new figure, and optionally saves it as a PNG.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: figures are written to files, never shown
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.colors import ListedColormap  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch, Rectangle  # noqa: E402
+
+from bfsop_jax.world import constants as C  # noqa: E402
+from bfsop_jax.world.types import House  # noqa: E402
+
+__all__ = ["plot_house"]
+
+ROOM_COLOURS: tuple[str, ...] = ("#f6d8a8", "#cfe3c1", "#c9d8ef", "#d7ecef")  # by room type
+TARGET_COLOURS: tuple[str, ...] = (
+    "#d62728", "#b8860b", "#1f77b4", "#7f7f7f", "#9467bd",
+    "#8c564b", "#17becf", "#ff7f0e", "#2ca02c",
+)  # fmt: skip
+TARGET_MARKERS: tuple[str, ...] = ("o", "s", "^", "D", "v", "P", "X", "*", "h")
+# Short furniture labels drawn inside the rectangles that are large enough.
+FURNITURE_LABELS: dict[str, str] = {
+    "CounterTop": "Counter", "Fridge": "Fridge", "DiningTable": "Dining", "ShelvingUnit": "Shelf",
+    "SideTable": "Side", "Sofa": "Sofa", "CoffeeTable": "Coffee", "TVStand": "TV",
+    "Desk": "Desk", "Dresser": "Dresser", "Bed": "Bed", "Sink": "Sink", "Toilet": "WC",
+    "ArmChair": "Arm", "Chair": "Chair", "Stool": "Stool", "GarbageCan": "Bin",
+}  # fmt: skip
+
+
+def _save(fig: plt.Figure, path: str | Path | None) -> None:
+    if path is not None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=fig.dpi, bbox_inches="tight")
+
+
+def plot_house(
+    house: House,
+    path: str | Path | None = None,
+    ax: plt.Axes | None = None,
+    title: str | None = None,
+) -> plt.Figure:
+    """Top view of one (unbatched) house: rooms coloured by type, walls black, furniture
+    rectangles with short labels, targets as markers coloured by category. Axes in metres.
+
+    Draws on ``ax`` when given (and returns its figure), else on a new figure sized to the
+    house; saves a PNG to ``path`` when given.
+    """
+    occupied = np.asarray(house.occupied)
+    if occupied.ndim != 2:
+        raise ValueError(f"plot_house takes one house, got occupied of shape {occupied.shape}")
+    room_of_cell = np.asarray(house.room_of_cell)
+    room_type = np.asarray(house.room_type)
+    category = np.asarray(house.object_category)
+    xy = np.asarray(house.object_xy)
+    half = np.asarray(house.object_half_extent)
+    cs = float(house.cell_size)
+    h, w = occupied.shape
+    extent = (0.0, w * cs, 0.0, h * cs)
+
+    if ax is None:
+        scale = 7.0 / max(w * cs, h * cs) ** 0.5
+        fig, ax = plt.subplots(figsize=(w * cs * scale / 2.2 + 2.5, h * cs * scale / 2.2), dpi=110)
+    else:
+        fig = ax.figure
+
+    # Floor by room type (index 0 = outside / wall), walls black on top.
+    kind = np.where(room_of_cell >= 0, room_type[np.maximum(room_of_cell, 0)] + 1, 0)
+    floor_cmap = ListedColormap(["white", *ROOM_COLOURS])
+    ax.imshow(kind, origin="lower", extent=extent, cmap=floor_cmap, vmin=0, vmax=len(ROOM_COLOURS),
+              interpolation="nearest")  # fmt: skip
+    wall = occupied & (room_of_cell < 0)
+    blocked = occupied & (room_of_cell >= 0)  # furniture and filled pockets
+    overlay = np.zeros((h, w, 4))
+    overlay[wall] = (0.0, 0.0, 0.0, 1.0)
+    overlay[blocked] = (0.35, 0.3, 0.25, 0.35)
+    ax.imshow(overlay, origin="lower", extent=extent, interpolation="nearest")
+
+    # Furniture (and floor plants) as rectangles.
+    font = max(4.0, min(7.0, 160.0 / max(w * cs, h * cs)))
+    for m in np.flatnonzero(category >= C.N_TARGETS):
+        (x, y), (hx, hy) = xy[m], half[m]
+        ax.add_patch(Rectangle((x - hx, y - hy), 2 * hx, 2 * hy, facecolor="#8b6f47",
+                               edgecolor="#3b2f1e", linewidth=0.6, alpha=0.85))  # fmt: skip
+        label = FURNITURE_LABELS.get(C.CATEGORY_NAMES[category[m]], "")
+        if label and 2 * max(hx, hy) >= 0.11 * len(label) * font / 6 and min(hx, hy) >= 0.15:
+            ax.text(x, y, label, ha="center", va="center", fontsize=font, color="white",
+                    rotation=90 if hy > hx * 1.3 else 0, clip_on=True)  # fmt: skip
+
+    # Targets as markers by category (floor plants get their marker too).
+    target_handles = []
+    for t, name in enumerate(C.TARGET_NAMES):
+        sel = category == t
+        if sel.any():
+            ax.scatter(xy[sel, 0], xy[sel, 1], s=22, marker=TARGET_MARKERS[t], c=TARGET_COLOURS[t],
+                       edgecolors="black", linewidths=0.4, zorder=5)  # fmt: skip
+        target_handles.append(
+            Line2D(
+                [],
+                [],
+                linestyle="",
+                marker=TARGET_MARKERS[t],
+                markerfacecolor=TARGET_COLOURS[t],
+                markeredgecolor="black",
+                label=f"{name} ({int(sel.sum())})",
+            )  # fmt: skip
+        )
+    room_handles = [
+        Patch(
+            facecolor=ROOM_COLOURS[k],
+            edgecolor="grey",
+            label=f"{n} ({int((room_type == k).sum())})",
+        )
+        for k, n in enumerate(C.ROOM_TYPE_NAMES)
+    ]
+    room_handles.append(Patch(facecolor="#8b6f47", edgecolor="#3b2f1e", label="furniture"))
+    ax.legend(handles=room_handles + target_handles, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              fontsize=7, frameon=False)  # fmt: skip
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if title is not None:
+        ax.set_title(title)
+    _save(fig, path)
+    return fig

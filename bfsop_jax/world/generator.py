@@ -1,0 +1,635 @@
+"""Procedural ProcTHOR-like houses in pure JAX (SPEC 3.2).
+
+:func:`generate_house` builds a :class:`House` from a PRNG key in five stages, all with static
+shapes so that one preset compiles once and ``jax.vmap`` over keys batches whole houses:
+
+1. **Floorplan** (:func:`generate_floorplan`): recursive binary partition of the footprint.
+   Each step splits a large room (area-weighted random choice) across its longer side; the
+   partition line becomes a wall. After all splits, one door is cut in every partition line
+   (by induction over the partition tree this connects the house) plus ``preset.extra_doors``
+   second doors on long lines, which add loops. Doors keep away from T-junctions.
+2. **Room types**: the smallest rooms become bathrooms; the other rooms are split into living
+   rooms (favouring large rooms), kitchens and bedrooms by ``ROOM_TYPE_SHARE``; every house
+   with >= 4 rooms has at least one room of each type.
+3. **Furniture**: a fixed plan of slots per room type (required pieces first). For every slot
+   a batch of random candidate rectangles (mostly flush against a wall, tables free-standing)
+   is tested against the room interior, the pieces already placed and the clearance zones in
+   front of every door; a random valid candidate wins (full size preferred, then shrunk
+   copies). Any two pieces, and a piece and a wall it does not touch, keep a passage of
+   ``2 * robot_radius_m + 0.2`` m, so furniture never cuts a room in two for the robot.
+4. **Targets** spawn on receptacles by ProcTHOR's rule (see ``constants`` and
+   ``procthor/spawn_facts.md``); a HousePlant may also stand on the floor.
+5. **Raster**: walls, door gaps and furniture are rasterised by broadcasting rectangle
+   bounds (a [N, H] x [N, W] matrix product), then every free cell outside the largest
+   4-connected free component is marked occupied (:func:`fill_free_pockets`), so all free
+   cells are mutually reachable by construction.
+
+Geometry: walls lie on integer cell boundaries ("lines"); a wall on line ``c`` occupies cells
+``c - tl .. c + tr - 1`` (``tl + tr`` = wall thickness in cells). Furniture and targets live in
+metres; a cell belongs to a rectangle when its centre does.
+
+Capacity: objects are stored as furniture first (room by room), then targets in random
+order. Anything beyond ``preset.max_objects`` slots is not created: such furniture is not
+rasterised either, and targets whose receptacle was dropped are dropped with it, so the
+object arrays always describe the grid exactly.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.world import constants as C
+from bfsop_jax.world.types import House
+
+__all__ = ["Floorplan", "fill_free_pockets", "generate_floorplan", "generate_house"]
+
+# --- furniture plan ----------------------------------------------------------------------
+# Per room type: (category, probability, free-standing). Required pieces come first with
+# probability 1 (they are placed while the room is still empty); large before small.
+_FURNITURE_PLAN: dict[str, tuple[tuple[str, float, bool], ...]] = {
+    "Kitchen": (
+        ("CounterTop", 1.0, False), ("Fridge", 0.9, False), ("CounterTop", 0.6, False),
+        ("DiningTable", 0.6, True), ("ShelvingUnit", 0.35, False), ("SideTable", 0.3, False),
+        ("GarbageCan", 0.6, False), ("Stool", 0.3, False), ("Chair", 0.3, False),
+        ("HousePlant", 0.15, False),
+    ),
+    "LivingRoom": (
+        ("Sofa", 0.95, False), ("TVStand", 0.85, False), ("CoffeeTable", 0.8, True),
+        ("ShelvingUnit", 0.5, False), ("SideTable", 0.6, False), ("ArmChair", 0.5, False),
+        ("Desk", 0.3, False), ("Dresser", 0.3, False), ("DiningTable", 0.3, True),
+        ("HousePlant", 0.3, False),
+    ),
+    "Bedroom": (
+        ("Bed", 1.0, False), ("SideTable", 0.8, False), ("Dresser", 0.7, False),
+        ("Desk", 0.5, False), ("ShelvingUnit", 0.4, False), ("ArmChair", 0.3, False),
+        ("SideTable", 0.3, False), ("HousePlant", 0.2, False),
+    ),
+    "Bathroom": (
+        ("Toilet", 1.0, False), ("Sink", 1.0, False), ("SideTable", 0.3, False),
+        ("GarbageCan", 0.5, False), ("HousePlant", 0.15, False),
+    ),
+}  # fmt: skip
+for _room, _slots in _FURNITURE_PLAN.items():
+    for _name, _, _ in _slots:
+        assert _name in C.ROOM_FURNITURE[_room] or _name == "HousePlant", (_room, _name)
+
+N_FURNITURE_SLOTS = max(len(s) for s in _FURNITURE_PLAN.values())  # S
+_PLAN_CATEGORY = np.full((C.N_ROOM_TYPES, N_FURNITURE_SLOTS), -1, np.int32)
+_PLAN_PROB = np.zeros((C.N_ROOM_TYPES, N_FURNITURE_SLOTS), np.float32)
+_PLAN_FREE = np.zeros((C.N_ROOM_TYPES, N_FURNITURE_SLOTS), bool)
+for _t, _room in enumerate(C.ROOM_TYPE_NAMES):
+    for _s, (_name, _p, _free) in enumerate(_FURNITURE_PLAN[_room]):
+        _PLAN_CATEGORY[_t, _s] = C.category_id(_name)
+        _PLAN_PROB[_t, _s] = _p
+        _PLAN_FREE[_t, _s] = _free
+
+# Footprint (along the wall, away from it) of every category in metres; targets are square
+# (only the floor HousePlant uses it).
+_FOOTPRINT = np.array(
+    [(C.TARGET_SIZE_M[n],) * 2 for n in C.TARGET_NAMES]
+    + [C.FOOTPRINT_M[n] for n in C.RECEPTACLE_NAMES + C.OBSTACLE_NAMES],
+    dtype=np.float32,
+)
+_ONE_PER_ROOM = np.array([n in C.ONE_PER_ROOM_TARGETS for n in C.TARGET_NAMES])
+_HOUSE_PLANT = C.TARGET_NAMES.index("HousePlant")
+
+_N_CANDIDATES = 32  # random placements tried per furniture slot (half of them shrunk)
+_N_DOOR_CANDIDATES = 32  # random door positions tried per partition line
+_DOOR_WIDTH_M = (0.9, 1.2)
+_DOOR_ZONE_DEPTH_M = 0.9  # furniture-free depth in front of a door, both sides
+_DOOR_ZONE_SIDE_M = 0.2  # ... and beyond the door's jambs
+_DOOR_JUNCTION_M = 0.3  # door gap to a perpendicular wall, beyond the wall itself
+_CORNER_SNAP = 0.35  # chance that a wall piece is pushed into a corner
+
+
+def _wall_cells(preset: Preset) -> tuple[int, int]:
+    """(tl, tr): a wall on line c occupies cells c - tl .. c + tr - 1."""
+    t = max(1, int(math.floor(preset.wall_thickness_m / preset.cell_size + 0.5 + 1e-6)))
+    return t // 2, t - t // 2
+
+
+def _n_doors(preset: Preset) -> int:
+    return preset.max_rooms - 1 + preset.extra_doors
+
+
+def passage_m(preset: Preset) -> float:
+    """Minimum free gap (m) between furniture pieces: robot diameter plus a margin."""
+    return 2.0 * preset.robot_radius_m + 0.2
+
+
+# --- stage 1: floorplan --------------------------------------------------------------------
+@struct.dataclass
+class Floorplan:
+    """Rooms, walls and doors of a partitioned footprint, in cell units (wall lines).
+
+    A line is ``(vertical, coord, lo, hi)``: a vertical line is the wall x = coord between
+    y = lo and y = hi (cell boundaries); a horizontal one swaps x and y.
+    """
+
+    room_rect: jax.Array  # [R, 4] int32: (x0, y0, x1, y1) wall lines around the room
+    room_valid: jax.Array  # [R] bool: slot holds a room (valid rooms are a prefix)
+    wall_line: jax.Array  # [R - 1, 4] int32: partition lines, in split order
+    wall_valid: jax.Array  # [R - 1] bool
+    door: jax.Array  # [D, 4] int32: (vertical, coord, lo, hi), gap cells lo .. hi - 1
+    door_valid: jax.Array  # [D] bool; D = R - 1 + extra_doors (one per line, then extras)
+
+
+def generate_floorplan(key: jax.Array, preset: Preset | str) -> Floorplan:
+    """Recursive binary partition of the footprint plus doors (shapes from ``preset``)."""
+    preset = get_preset(preset)
+    h_cells, w_cells = preset.grid_shape
+    n_slots = preset.max_rooms
+    tl, tr = _wall_cells(preset)
+    min_side = int(math.ceil(preset.min_room_side_m / preset.cell_size - 1e-6))
+    k_count, k_split, k_door, k_extra = jax.random.split(key, 4)
+    n_rooms = jax.random.randint(k_count, (), preset.min_rooms, preset.max_rooms + 1)
+
+    rect = (
+        jnp.zeros((n_slots, 4), jnp.int32)
+        .at[0]
+        .set(jnp.array([tl, tl, w_cells - tr, h_cells - tr], jnp.int32))
+    )
+    valid = jnp.zeros(n_slots, bool).at[0].set(True)
+    lines = jnp.zeros((n_slots - 1, 4), jnp.int32)
+    line_valid = jnp.zeros(n_slots - 1, bool)
+
+    def split(i, carry):
+        rect, valid, lines, line_valid = carry
+        k_pick, k_pos = jax.random.split(jax.random.fold_in(k_split, i))
+        w = rect[:, 2] - rect[:, 0]
+        h = rect[:, 3] - rect[:, 1]
+        can = valid & (jnp.maximum(w, h) >= 2 * min_side) & (i + 1 < n_rooms)
+        # Large rooms are split first, with some randomness (area^2-weighted choice).
+        area = jnp.maximum(w * h, 1).astype(jnp.float32)
+        score = jnp.where(
+            can, 2.0 * jnp.log(area) + jax.random.gumbel(k_pick, (n_slots,)), -jnp.inf
+        )
+        r = jnp.argmax(score)
+        ok = can[r]
+        x0, y0, x1, y1 = rect[r]
+        vertical = w[r] >= h[r]  # split across the longer side with a vertical wall x = c
+        start = jnp.where(vertical, x0, y0)
+        length = jnp.where(vertical, w[r], h[r])
+        frac = jax.random.uniform(k_pos, minval=0.25, maxval=0.75)
+        offset = jnp.clip(jnp.round(frac * length).astype(jnp.int32), min_side, length - min_side)
+        c = start + offset
+        near = jnp.where(vertical, jnp.stack([x0, y0, c, y1]), jnp.stack([x0, y0, x1, c]))
+        far = jnp.where(vertical, jnp.stack([c, y0, x1, y1]), jnp.stack([x0, c, x1, y1]))
+        line = jnp.stack(
+            [
+                vertical.astype(jnp.int32),
+                c,
+                jnp.where(vertical, y0, x0),
+                jnp.where(vertical, y1, x1),
+            ]
+        )
+        # Selects instead of indexed updates: rect[r] is read and rewritten in one step.
+        slot = jnp.arange(n_slots)[:, None]
+        rect = jnp.where(ok & (slot == r), near, jnp.where(ok & (slot == i + 1), far, rect))
+        valid = valid | (ok & (slot[:, 0] == i + 1))
+        at_i = ok & (jnp.arange(n_slots - 1) == i)
+        lines = jnp.where(at_i[:, None], line, lines)
+        line_valid = line_valid | at_i
+        return rect, valid, lines, line_valid
+
+    rect, valid, lines, line_valid = jax.lax.fori_loop(
+        0, n_slots - 1, split, (rect, valid, lines, line_valid)
+    )
+
+    # Obstacles along each line for door placement: its two ends and every perpendicular
+    # wall ending on it (T-junction), as (position along the line, keep-out radius).
+    vert, coord, lo, hi = lines.T
+    ends_on = (lo[None, :] == coord[:, None]) | (hi[None, :] == coord[:, None])
+    touches = (
+        line_valid[None, :]
+        & (vert[None, :] != vert[:, None])
+        & ends_on
+        & (coord[None, :] >= lo[:, None])
+        & (coord[None, :] <= hi[:, None])
+    )
+    far_away = jnp.float32(-1e6)
+    junction = jnp.where(touches, coord[None, :].astype(jnp.float32), far_away)
+    junction = jnp.concatenate([junction, lo[:, None], hi[:, None]], axis=1).astype(jnp.float32)
+    keep_out = float(tr + tl) + _DOOR_JUNCTION_M / preset.cell_size
+
+    door_min = int(round(_DOOR_WIDTH_M[0] / preset.cell_size))
+    door_max = int(round(_DOOR_WIDTH_M[1] / preset.cell_size))
+
+    def place_door(key, k, avoid_at, avoid_radius):
+        """Door gap on line k away from junctions and from one other gap (avoid_at)."""
+        k_w, k_u, k_pick = jax.random.split(key, 3)
+        width = jax.random.randint(k_w, (), door_min, door_max + 1)
+        half = (width + 1) // 2
+        centre = jnp.round(lo[k] + (hi[k] - lo[k]) * jax.random.uniform(k_u, (_N_DOOR_CANDIDATES,)))
+        gap = jnp.min(jnp.abs(centre[:, None] - junction[k][None, :]), axis=1) - half - keep_out
+        gap = jnp.minimum(gap, jnp.abs(centre - avoid_at) - half - avoid_radius)
+        fits = gap >= 0
+        pick = jnp.argmax(jnp.where(fits, jax.random.uniform(k_pick, centre.shape), gap - 1e4))
+        d = centre[pick].astype(jnp.int32) - half
+        door = jnp.stack([vert[k], coord[k], d, d + width])
+        return door, fits[pick], centre[pick], half
+
+    n_lines = n_slots - 1
+    line_ids = jnp.arange(n_lines)
+    doors, _, door_centre, door_half = jax.vmap(place_door)(
+        jax.random.split(k_door, n_lines), line_ids, jnp.full(n_lines, far_away), jnp.zeros(n_lines)
+    )
+    # The spanning door of a line is always cut (best clearance if nothing fits perfectly).
+    door_valid = line_valid
+
+    if preset.extra_doors > 0:
+        # Extra doors go on long lines (length-weighted choice without replacement).
+        k_pick, k_place = jax.random.split(k_extra)
+        length = (hi - lo).astype(jnp.float32)
+        score = jnp.where(
+            line_valid & (length >= 2 * min_side),
+            jnp.log(jnp.maximum(length, 1.0)) + jax.random.gumbel(k_pick, (n_lines,)),
+            -jnp.inf,
+        )
+        n_extra = min(preset.extra_doors, n_lines)
+        top_score, top = jax.lax.top_k(score, n_extra)
+        extra, extra_fits, _, _ = jax.vmap(place_door)(
+            jax.random.split(k_place, n_extra),
+            top,
+            door_centre[top],
+            (door_half[top] + 1.0 / preset.cell_size).astype(jnp.float32),
+        )
+        extra_valid = jnp.isfinite(top_score) & extra_fits
+        pad = preset.extra_doors - n_extra
+        doors = jnp.concatenate([doors, extra, jnp.zeros((pad, 4), jnp.int32)])
+        door_valid = jnp.concatenate([door_valid, extra_valid, jnp.zeros(pad, bool)])
+    doors = jnp.where(door_valid[:, None], doors, 0)
+    return Floorplan(rect, valid, lines, line_valid, doors, door_valid)
+
+
+def _line_rect(line: jax.Array, tl: int, tr: int, pad_lo: int, pad_hi: int) -> jax.Array:
+    """[N, 4] (x0, y0, x1, y1) cell rectangles of line segments (thickness tl + tr cells)."""
+    vert, c, lo, hi = line.T
+    across = jnp.stack([c - tl, c + tr], axis=1)
+    along = jnp.stack([lo - pad_lo, hi + pad_hi], axis=1)
+    v = (vert == 1)[:, None]
+    x = jnp.where(v, across, along)
+    y = jnp.where(v, along, across)
+    return jnp.stack([x[:, 0], y[:, 0], x[:, 1], y[:, 1]], axis=1)
+
+
+def _rasterise(rects: jax.Array, weight: jax.Array, shape: tuple[int, int]) -> jax.Array:
+    """Sum of ``weight`` over the rectangles containing each cell centre -> [H, W] float32.
+
+    ``rects`` [N, 4] holds (x0, y0, x1, y1) in cell units (floats allowed); cell (i, j) is
+    inside when x0 <= j + 0.5 < x1 and y0 <= i + 0.5 < y1. A rectangle is separable, so the
+    whole raster is one [H, N] x [N, W] matrix product.
+    """
+    h, w = shape
+    yc = jnp.arange(h, dtype=jnp.float32) + 0.5
+    xc = jnp.arange(w, dtype=jnp.float32) + 0.5
+    rows = (yc[None, :] >= rects[:, 1:2]) & (yc[None, :] < rects[:, 3:4])
+    cols = (xc[None, :] >= rects[:, 0:1]) & (xc[None, :] < rects[:, 2:3])
+    return jnp.matmul(
+        rows.T.astype(jnp.float32),
+        cols.astype(jnp.float32) * weight[:, None],
+        precision=jax.lax.Precision.HIGHEST,
+    )
+
+
+# --- stage 2: room types -------------------------------------------------------------------
+def _assign_room_types(key: jax.Array, plan: Floorplan) -> jax.Array:
+    """[R] int32 room types; smallest rooms are bathrooms, -1 for unused slots."""
+    valid = plan.room_valid
+    area = (plan.room_rect[:, 2] - plan.room_rect[:, 0]) * (
+        plan.room_rect[:, 3] - plan.room_rect[:, 1]
+    )
+    area = area.astype(jnp.float32)
+    n = jnp.sum(valid)
+    share = jnp.asarray(C.ROOM_TYPE_SHARE)
+    quota = jnp.maximum(1, jnp.round(share * n).astype(jnp.int32))
+    n_bath = quota[C.BATHROOM]
+    bath_rank = jnp.argsort(jnp.argsort(jnp.where(valid, area, jnp.inf)))
+    bath = valid & (bath_rank < n_bath)
+    # Living rooms favour large rooms; kitchens and bedrooms share the rest at random.
+    size = area * jax.random.uniform(key, area.shape, minval=0.5, maxval=1.5)
+    rank = jnp.argsort(jnp.argsort(jnp.where(valid & ~bath, -size, jnp.inf)))
+    n_living, n_kitchen = quota[C.LIVING_ROOM], quota[C.KITCHEN]
+    other = jnp.where(
+        rank < n_living,
+        C.LIVING_ROOM,
+        jnp.where(rank < n_living + n_kitchen, C.KITCHEN, C.BEDROOM),
+    )
+    room_type = jnp.where(bath, C.BATHROOM, other)
+    return jnp.where(valid, room_type, -1).astype(jnp.int32)
+
+
+# --- stage 3: furniture --------------------------------------------------------------------
+@struct.dataclass
+class _Furniture:
+    category: jax.Array  # [R, S] int32, -1 = not placed
+    centre: jax.Array  # [R, S, 2] float32 metres
+    half: jax.Array  # [R, S, 2] float32 half sizes (x, y) metres
+
+
+def _door_zones(plan: Floorplan, preset: Preset) -> jax.Array:
+    """[D, 4] (x0, y0, x1, y1) metres kept free of furniture in front of each door."""
+    tl, tr = _wall_cells(preset)
+    cs = preset.cell_size
+    depth = _DOOR_ZONE_DEPTH_M / cs
+    side = _DOOR_ZONE_SIDE_M / cs
+    vert, c, lo, hi = plan.door.astype(jnp.float32).T
+    across = jnp.stack([c - tl - depth, c + tr + depth], axis=1)
+    along = jnp.stack([lo - side, hi + side], axis=1)
+    v = (vert == 1)[:, None]
+    x = jnp.where(v, across, along)
+    y = jnp.where(v, along, across)
+    zones = jnp.stack([x[:, 0], y[:, 0], x[:, 1], y[:, 1]], axis=1) * cs
+    # An invalid door gets an empty zone far away.
+    return jnp.where(plan.door_valid[:, None], zones, -1e3)
+
+
+def _furnish(key: jax.Array, plan: Floorplan, room_type: jax.Array, preset: Preset) -> _Furniture:
+    tl, tr = _wall_cells(preset)
+    cs = preset.cell_size
+    clear = passage_m(preset)
+    n_rooms, n_cand = preset.max_rooms, _N_CANDIDATES
+    x0, y0, x1, y1 = plan.room_rect.astype(jnp.float32).T
+    lo = jnp.stack([x0 + tr, y0 + tr], axis=1) * cs  # [R, 2] interior bounds, metres
+    hi = jnp.stack([x1 - tl, y1 - tl], axis=1) * cs
+    zones = _door_zones(plan, preset)
+    safe_type = jnp.maximum(room_type, 0)
+    slot_cat = jnp.where(room_type[:, None] >= 0, jnp.asarray(_PLAN_CATEGORY)[safe_type], -1)
+    slot_prob = jnp.asarray(_PLAN_PROB)[safe_type]
+    slot_free = jnp.asarray(_PLAN_FREE)[safe_type]
+    footprint = jnp.asarray(_FOOTPRINT)
+    eps = 1e-4
+
+    def place(carry, s):
+        centre, half, placed = carry  # [R, S, 2], [R, S, 2], [R, S]
+        ks = jax.random.split(jax.random.fold_in(key, s), 8)
+        cat = slot_cat[:, s]
+        free = slot_free[:, s][:, None]
+        shrink = jax.random.uniform(ks[0], (n_rooms, n_cand), minval=0.65, maxval=0.95)
+        scale = jnp.where(jnp.arange(n_cand) < n_cand // 2, 1.0, shrink)
+        along = footprint[jnp.maximum(cat, 0), 0][:, None] * scale
+        depth = footprint[jnp.maximum(cat, 0), 1][:, None] * scale
+        side = jax.random.randint(ks[1], (n_rooms, n_cand), 0, 4)  # wall: -y, +y, -x, +x
+        on_y_wall = side < 2
+        turned = jnp.where(free, jax.random.bernoulli(ks[2], 0.5, side.shape), ~on_y_wall)
+        h = jnp.stack([jnp.where(turned, depth, along), jnp.where(turned, along, depth)], -1) / 2
+        flush_lo = ~free[..., None] & jnp.stack([side == 2, side == 0], -1)
+        flush_hi = ~free[..., None] & jnp.stack([side == 3, side == 1], -1)
+        snap = (
+            ~free[..., None]
+            & jnp.stack([on_y_wall, ~on_y_wall], -1)
+            & jax.random.bernoulli(ks[3], _CORNER_SNAP, h.shape)
+        )
+        to_lo = jax.random.bernoulli(ks[4], 0.5, h.shape)
+        u = jax.random.uniform(ks[5], h.shape)
+        lo_, hi_ = lo[:, None, :], hi[:, None, :]
+        roam = lo_ + clear + h + u * jnp.maximum(hi_ - lo_ - 2 * (clear + h), 0.0)
+        c = jnp.where(
+            flush_lo | (snap & to_lo),
+            lo_ + h,
+            jnp.where(flush_hi | (snap & ~to_lo), hi_ - h, roam),
+        )  # [R, K, 2]
+        # Each gap to a wall is either zero (flush) or a full passage; never flush on two
+        # opposite walls (the piece would span the room).
+        gap_lo = c - h - lo_
+        gap_hi = hi_ - c - h
+        touch_lo, touch_hi = jnp.abs(gap_lo) < eps, jnp.abs(gap_hi) < eps
+        gap_ok = (touch_lo | (gap_lo >= clear - eps)) & (touch_hi | (gap_hi >= clear - eps))
+        ok = jnp.all(gap_ok & ~(touch_lo & touch_hi), axis=-1)
+        # Passage to every piece already placed in the room.
+        dist = jnp.abs(c[:, :, None, :] - centre[:, None, :, :]) - h[:, :, None, :] - half[:, None]
+        blocked = jnp.all(dist < clear - eps, axis=-1) & placed[:, None, :]
+        ok &= ~jnp.any(blocked, axis=-1)
+        # Door clearance zones.
+        in_zone = (
+            (c[..., None, 0] + h[..., None, 0] > zones[:, 0])
+            & (c[..., None, 0] - h[..., None, 0] < zones[:, 2])
+            & (c[..., None, 1] + h[..., None, 1] > zones[:, 1])
+            & (c[..., None, 1] - h[..., None, 1] < zones[:, 3])
+        )
+        ok &= ~jnp.any(in_zone, axis=-1)
+        preference = jax.random.uniform(ks[6], ok.shape) + (scale == 1.0)
+        best = jnp.argmax(jnp.where(ok, preference, -1.0), axis=1)
+        wanted = (cat >= 0) & (jax.random.uniform(ks[7], (n_rooms,)) < slot_prob[:, s])
+        put = wanted & jnp.take_along_axis(ok, best[:, None], 1)[:, 0]
+        rows = jnp.arange(n_rooms)
+        centre = centre.at[:, s].set(jnp.where(put[:, None], c[rows, best], 0.0))
+        half = half.at[:, s].set(jnp.where(put[:, None], h[rows, best], 0.0))
+        placed = placed.at[:, s].set(put)
+        return (centre, half, placed), None
+
+    n_slot = N_FURNITURE_SLOTS
+    init = (
+        jnp.zeros((n_rooms, n_slot, 2)),
+        jnp.zeros((n_rooms, n_slot, 2)),
+        jnp.zeros((n_rooms, n_slot), bool),
+    )
+    (centre, half, placed), _ = jax.lax.scan(place, init, jnp.arange(n_slot))
+    return _Furniture(jnp.where(placed, slot_cat, -1), centre, half)
+
+
+# --- stage 4: targets ----------------------------------------------------------------------
+def _spawn_targets(
+    key: jax.Array, category: jax.Array, room: jax.Array, room_type: jax.Array, n_rooms: int
+) -> jax.Array:
+    """[P, N_TARGETS, copies] bool: copy k of target t stands on piece p.
+
+    ProcTHOR's rule per (receptacle, target) pair in a room of an allowed type: keep when
+    ``u <= p + parent_bias + child_bias + house_bias``; further copies while ``u <= p`` (at
+    most ``MAX_COPIES_PER_RECEPTACLE``); Apple, Laptop, SoapBottle and HousePlant at most
+    once per room (a floor HousePlant counts).
+    """
+    k_bias, k_room, k_first, k_more, k_pick = jax.random.split(key, 5)
+    n_pieces = category.shape[0]
+    copies = C.MAX_COPIES_PER_RECEPTACLE
+    house_bias = 0.4 * jax.random.beta(k_bias, 3.5, 1.9) - 0.3
+    receptacle = C.is_receptacle(category)
+    rec = jnp.clip(category - C.FIRST_RECEPTACLE, 0, C.N_RECEPTACLES - 1)
+    p = jnp.where(receptacle[:, None], jnp.asarray(C.SPAWN_PROB)[rec], 0.0)  # [P, T]
+    kind = jnp.maximum(room_type[jnp.maximum(room, 0)], 0)
+    room_weight = jnp.asarray(C.TARGET_ROOM_WEIGHT).T[kind]  # [P, T]
+    shape = (n_pieces, C.N_TARGETS)
+    bias = jnp.asarray(C.PARENT_BIAS)[rec][:, None] + jnp.asarray(C.CHILD_BIAS)[None, :]
+    u_first = jax.random.uniform(k_first, shape)
+    first = (
+        (p > 0)
+        & (jax.random.uniform(k_room, shape) < room_weight)
+        & (u_first <= p + bias + house_bias)
+    )
+    # One-per-room targets: keep the pair with the smallest draw in each room.
+    slot_room = jnp.where(receptacle, room, n_rooms)  # non-receptacles go to a dummy segment
+    draw = jnp.where(first, jax.random.uniform(k_pick, shape), 2.0)
+    room_min = jax.ops.segment_min(draw, slot_room, num_segments=n_rooms + 1)
+    floor_plant = jax.ops.segment_max(
+        (category == _HOUSE_PLANT).astype(jnp.int32),
+        jnp.where(room >= 0, room, n_rooms),
+        num_segments=n_rooms + 1,
+    )
+    single = (draw <= room_min[slot_room]) & ~(
+        (jnp.arange(C.N_TARGETS) == _HOUSE_PLANT)[None, :] & (floor_plant[slot_room] > 0)[:, None]
+    )
+    one = jnp.asarray(_ONE_PER_ROOM)[None, :]
+    first &= ~one | single
+    more = jax.random.uniform(k_more, (*shape, copies - 1)) <= p[..., None]
+    more = (
+        jnp.cumprod(more.astype(jnp.int32), axis=-1).astype(bool)
+        & first[..., None]
+        & ~one[..., None]
+    )
+    return jnp.concatenate([first[..., None], more], axis=-1)
+
+
+# --- stage 5: raster and connectivity ------------------------------------------------------
+def _run_min(label: jax.Array, free: jax.Array, big: int) -> jax.Array:
+    """Minimum label over each horizontal run of free cells (rows of [H, W])."""
+    start = free & ~jnp.pad(free, ((0, 0), (1, 0)))[:, :-1]
+    run = jnp.cumsum(start, axis=1, dtype=jnp.int32)  # run index along the row
+    # Earlier runs get larger keys, so a prefix minimum never crosses into an earlier run;
+    # likewise for later runs in the suffix minimum.
+    fwd = jax.lax.cummin(label - run * big, axis=1) + run * big
+    bwd = jax.lax.cummin(label + run * big, axis=1, reverse=True) - run * big
+    return jnp.where(free, jnp.minimum(fwd, bwd), label)
+
+
+def free_space_components(free: jax.Array) -> jax.Array:
+    """[H, W] int32 component label of every free cell (4-connectivity), -1 elsewhere.
+
+    Labels are the smallest flat cell index of the component. Minimum labels propagate along
+    whole row and column runs per iteration, so the loop runs about as many times as a path
+    has turns, not as many cells as it is long.
+    """
+    h, w = free.shape
+    big = h * w + 1
+    if big * (max(h, w) + 2) >= 2**31:
+        raise ValueError(f"grid {h}x{w} too large for int32 component labels")
+    label0 = jnp.where(free, jnp.arange(h * w, dtype=jnp.int32).reshape(h, w), big - 1)
+
+    def sweep(state):
+        label, _ = state
+        new = _run_min(label, free, big)
+        new = _run_min(new.T, free.T, big).T
+        return new, jnp.any(new != label)
+
+    label, _ = jax.lax.while_loop(lambda s: s[1], sweep, (label0, jnp.array(True)))
+    return jnp.where(free, label, -1)
+
+
+def fill_free_pockets(occupied: jax.Array) -> jax.Array:
+    """Mark every free cell outside the largest 4-connected free component as occupied."""
+    free = ~occupied
+    label = free_space_components(free)
+    count = jnp.bincount(
+        jnp.where(free, label, 0).ravel(),
+        weights=free.ravel().astype(jnp.float32),
+        length=free.size,
+    )
+    main = jnp.argmax(count)
+    return occupied | (free & (label != main))
+
+
+def generate_house(key: jax.Array, preset: Preset | str = "demo") -> House:
+    """Random ProcTHOR-like house (SPEC 3.2); pure, jit-able and vmappable over ``key``.
+
+    ``preset`` (a :class:`Preset` or its name) is static: it fixes the grid shape (H, W) =
+    ``preset.grid_shape`` (cells of ``preset.cell_size`` m), R = ``preset.max_rooms`` room
+    slots and M = ``preset.max_objects`` object slots. Batched use::
+
+        jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(keys, preset)
+    """
+    preset = get_preset(preset)
+    shape = preset.grid_shape
+    cs = preset.cell_size
+    n_rooms, n_obj = preset.max_rooms, preset.max_objects
+    tl, tr = _wall_cells(preset)
+    k_plan, k_type, k_furn, k_spawn, k_xy, k_order = jax.random.split(key, 6)
+
+    plan = generate_floorplan(k_plan, preset)
+    room_type = _assign_room_types(k_type, plan)
+    furniture = _furnish(k_furn, plan, room_type, preset)
+
+    # Furniture slots in room order; slots beyond capacity are dropped entirely.
+    piece_cat = furniture.category.reshape(-1)  # [P]
+    piece_room = jnp.repeat(jnp.arange(n_rooms), N_FURNITURE_SLOTS)
+    piece_centre = furniture.centre.reshape(-1, 2)
+    piece_half = furniture.half.reshape(-1, 2)
+    piece_slot = jnp.cumsum(piece_cat >= 0) - 1
+    piece_valid = (piece_cat >= 0) & (piece_slot < n_obj)
+    piece_cat = jnp.where(piece_valid, piece_cat, -1)
+    n_pieces = jnp.sum(piece_valid)
+
+    on = _spawn_targets(k_spawn, piece_cat, piece_room, room_type, n_rooms)  # [P, T, copies]
+    n_pc, n_t, n_copy = on.shape
+    tgt_parent = jnp.broadcast_to(jnp.arange(n_pc)[:, None, None], on.shape).reshape(-1)
+    tgt_cat = jnp.broadcast_to(jnp.arange(n_t)[None, :, None], on.shape).reshape(-1)
+    tgt_valid = on.reshape(-1)
+    size = jnp.asarray(C.CATEGORY_SIZE_M)
+    # A target stands anywhere on its receptacle's top (fully inside the footprint if it fits).
+    room_to_spare = jnp.maximum(piece_half[tgt_parent] - size[tgt_cat, None] / 2, 0.0)
+    u = jax.random.uniform(k_xy, (tgt_cat.shape[0], 2), minval=-1.0, maxval=1.0)
+    tgt_xy = piece_centre[tgt_parent] + u * room_to_spare
+    # Targets fill the remaining slots in random order (a full house drops a random subset).
+    tgt_order = jnp.argsort(jnp.where(tgt_valid, jax.random.uniform(k_order, tgt_valid.shape), 2.0))
+    n_targets = jnp.sum(tgt_valid)
+
+    slot = jnp.arange(n_obj)
+    is_piece = slot < n_pieces
+    piece_idx = jnp.argsort(~piece_valid, stable=True)[jnp.minimum(slot, n_pc - 1)]
+    tgt_idx = tgt_order[jnp.clip(slot - n_pieces, 0, tgt_order.shape[0] - 1)]
+    used = slot < n_pieces + n_targets
+    t_par = tgt_parent[tgt_idx]
+    category = jnp.where(is_piece, piece_cat[piece_idx], tgt_cat[tgt_idx])
+    xy = jnp.where(is_piece[:, None], piece_centre[piece_idx], tgt_xy[tgt_idx])
+    half = jnp.where(is_piece[:, None], piece_half[piece_idx], size[tgt_cat[tgt_idx], None] / 2)
+    room = jnp.where(is_piece, piece_room[piece_idx], piece_room[t_par])
+    parent = jnp.where(is_piece, -1, piece_slot[t_par])
+    category = jnp.where(used, category, -1).astype(jnp.int32)
+    obj_valid = category >= 0
+
+    # Raster: rooms tile the footprint; walls on every line; doors cut last.
+    room_id = _rasterise(
+        plan.room_rect.astype(jnp.float32), (jnp.arange(n_rooms) + 1.0) * plan.room_valid, shape
+    )
+    room_of_cell = jnp.round(room_id).astype(jnp.int32) - 1
+    h_cells, w_cells = shape
+    outer = jnp.array(
+        [[1, tl, tl, h_cells - tr], [1, w_cells - tr, tl, h_cells - tr],
+         [0, tl, tl, w_cells - tr], [0, h_cells - tr, tl, w_cells - tr]],
+        jnp.int32,
+    )  # fmt: skip
+    lines = jnp.concatenate([outer, plan.wall_line])
+    line_valid = jnp.concatenate([jnp.ones(4, bool), plan.wall_valid])
+    walls = (
+        _rasterise(_line_rect(lines, tl, tr, tl, tr).astype(jnp.float32), line_valid * 1.0, shape)
+        > 0.5
+    )
+    gaps = (
+        _rasterise(
+            _line_rect(plan.door, tl, tr, 0, 0).astype(jnp.float32), plan.door_valid * 1.0, shape
+        )
+        > 0.5
+    )
+    walls &= ~gaps
+    piece_rect = jnp.concatenate([xy - half, xy + half], axis=1) / cs
+    furniture_cells = _rasterise(piece_rect, (is_piece & obj_valid) * 1.0, shape) > 0.5
+    room_of_cell = jnp.where(walls, -1, room_of_cell)
+    occupied = walls | furniture_cells | (room_of_cell < 0)
+    occupied = fill_free_pockets(occupied)
+
+    return House(
+        occupied=occupied,
+        room_of_cell=room_of_cell,
+        room_type=room_type,
+        object_category=category,
+        object_xy=jnp.where(obj_valid[:, None], xy, 0.0).astype(jnp.float32),
+        object_size=jnp.where(obj_valid, size[jnp.maximum(category, 0)], 0.0).astype(jnp.float32),
+        object_half_extent=jnp.where(obj_valid[:, None], half, 0.0).astype(jnp.float32),
+        object_room=jnp.where(obj_valid, room, -1).astype(jnp.int32),
+        object_parent=jnp.where(obj_valid, parent, -1).astype(jnp.int32),
+        cell_size=cs,
+    )
