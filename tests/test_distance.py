@@ -234,8 +234,9 @@ def test_blocked_source_snaps_to_nearest_free_cell():
     blocked = np.zeros(PRESET.plan_shape, bool)
     blocked[:, 30:33] = True  # a thick wall; source on its middle column
     blocked[10:13, 20:40] = True
-    got = np.asarray(distance_field(jnp.asarray(blocked), plan_cell_to_xy(np.array([30, 31]),
-                                                                           PRESET), PRESET))
+    got = np.asarray(
+        distance_field(jnp.asarray(blocked), plan_cell_to_xy(np.array([30, 31]), PRESET), PRESET)
+    )
     # nearest free cells of (30, 31) are (30, 29) and (30, 33) at 2 cells; the fixed order
     # picks one of them, which then reads 0
     assert got[30, 29] == 0.0 or got[30, 33] == 0.0
@@ -252,8 +253,9 @@ def test_distance_matrix_properties():
     cells = random_free_cells(rng, blocked, 10)
     valid = np.ones(10, bool)
     valid[[3, 8]] = False
-    m = np.asarray(jax.jit(distance_matrix, static_argnums=3)(blocked, cells_to_xy(cells),
-                                                               valid, PRESET))
+    m = np.asarray(
+        jax.jit(distance_matrix, static_argnums=3)(blocked, cells_to_xy(cells), valid, PRESET)
+    )
     ref = dijkstra_fields(blocked, cells)[:, cells[:, 0], cells[:, 1]]
     ref[~valid] = np.inf
     ref[:, ~valid] = np.inf
@@ -268,8 +270,9 @@ def test_vmap_over_maps_and_no_retrace():
     maps = np.stack([random_blocked(rng, 0.2) for _ in range(3)])
     srcs = np.stack([random_free_cells(rng, b, 4) for b in maps])
     ok = np.ones((3, 4), bool)
-    batched = jax.jit(jax.vmap(distance_fields_from_cells, in_axes=(0, 0, 0, None)),
-                      static_argnums=3)(maps, srcs, ok, PRESET)
+    batched = jax.jit(
+        jax.vmap(distance_fields_from_cells, in_axes=(0, 0, 0, None)), static_argnums=3
+    )(maps, srcs, ok, PRESET)
     for k in range(3):
         assert_fields_equal(batched[k], dijkstra_fields(maps[k], srcs[k]))
 

@@ -66,8 +66,9 @@ def field_at(xy):
 def test_reaches_goal_along_the_field(start):
     poses, lengths, arrived = walk(start)
     assert arrived
-    np.testing.assert_allclose(poses[-1], plan_cell_to_xy(xy_to_plan_cell(GOAL, PRESET), PRESET),
-                               atol=1e-5)
+    np.testing.assert_allclose(
+        poses[-1], plan_cell_to_xy(xy_to_plan_cell(GOAL, PRESET), PRESET), atol=1e-5
+    )
     # the polyline follows the field: same length up to one planning cell
     assert abs(lengths.sum() - field_at(start)) <= PC * math.sqrt(2) + 1e-4
     # every step but the arriving one is exactly one motion step long
@@ -84,7 +85,8 @@ def test_from_cell_centre_length_equals_field():
     _, lengths, arrived = walk(start, step=100.0, max_calls=1)  # one call, enough moves?
     assert not arrived  # default max_moves covers one motion step only
     xy, travelled, arrived, _ = jax.jit(advance, static_argnums=(3, 4))(
-        FIELD, start, 100.0, PRESET, 400)
+        FIELD, start, 100.0, PRESET, 400
+    )
     assert bool(arrived)
     np.testing.assert_allclose(float(travelled), field_at(start), rtol=1e-5)
 
@@ -157,11 +159,13 @@ def test_traversable_matches_brute_force():
     belief[rng.random(OCC.shape) < 0.5] = 0.0  # half unknown: does not block
     gate = jax.jit(is_traversable, static_argnums=2)
     # points near the wall, the door, the table and the map edges
-    pts = np.concatenate([
-        rng.uniform([7.5, 0.0], [8.7, 3.0], (40, 2)),
-        rng.uniform([2.5, 5.5], [5.5, 7.5], (40, 2)),
-        rng.uniform([-0.2, -0.2], [0.6, 0.6], (20, 2)),
-    ]).astype(np.float32)
+    pts = np.concatenate(
+        [
+            rng.uniform([7.5, 0.0], [8.7, 3.0], (40, 2)),
+            rng.uniform([2.5, 5.5], [5.5, 7.5], (40, 2)),
+            rng.uniform([-0.2, -0.2], [0.6, 0.6], (20, 2)),
+        ]
+    ).astype(np.float32)
     got = [bool(gate(belief, p, PRESET)) for p in pts]
     want = [reference_traversable(belief, p) for p in pts]
     assert got == want

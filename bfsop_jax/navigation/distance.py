@@ -20,20 +20,25 @@ no unblocked cell in reach the point has no field (all ``inf``).
 
 The solver
 ----------
-Gauss-Seidel line sweeps, batched over sources. One sweep visits the lines of the grid
-in order (rows top to bottom, rows bottom to top, columns left to right, columns right
-to left) and sets each cell to the minimum of itself and the three cells of the
-previous line it can be entered from (straight and the two diagonals). After a sweep
-every move of its 90 degree cone is relaxed, so a path made of moves of one cone is
-exact after one sweep; each change of cone along a path needs at most one more round
-of four sweeps. Sweeps repeat until three consecutive sweeps change nothing (together
-with the sweep before them that covers all 8 move directions), i.e. the Bellman
-optimality condition holds on every edge; since every value is always the length of a
-real walk, the result equals Dijkstra on the graph, up to float32 rounding of sums.
+Gauss-Seidel line sweeps, batched over sources. A sweep visits the lines of the grid in
+order (rows top to bottom, rows bottom to top, columns left to right, columns right to
+left; four sweeps make a round) and sets each cell of a line to the minimum of itself
+and the three cells of the previous line it can be entered from (straight and the two
+diagonals). After a sweep every move of its 90 degree cone is relaxed in path order, so
+a path made of moves of one cone is exact after one sweep, and each change of cone
+along a shortest path costs at most one more round. Houses need 5-12 rounds (more for
+bigger houses; see ``benchmarks/bench_distance.py``).
 
-Lines are processed by ``lax.scan`` over a [lines, sources, cells] array: each step is
-one wide vector operation over all sources, and the array is transposed between the
-row and the column sweeps.
+Convergence: a value lowered by the second, third or fourth sweep of a round is stored
+negated (a mark; the first sweep of each round clears all marks). A round that ends
+without a mark had three sweeps after its first that changed nothing, so every edge of
+the graph satisfies ``d[v] <= d[u] + w(u, v)``; every value is always the length of a
+real walk, so the fields then equal Dijkstra's, up to float32 rounding of sums.
+
+Layout: the field is one [Hp + 2, Wp + 2, M, S] array (an inf border, then M maps and S
+sources as the innermost "lane" axes), updated in place by ``lax.fori_loop`` over lines.
+Both sweep directions then read and write contiguous lane vectors, so no transposes are
+needed. Under ``jax.vmap`` the batch is folded into the lanes (``_lane_solver``).
 """
 
 from __future__ import annotations
@@ -88,9 +93,7 @@ def snap_to_free(blocked: jax.Array, cells: jax.Array) -> tuple[jax.Array, jax.A
     hp, wp = blocked.shape
     off = jnp.asarray(_snap_offsets(SNAP_RADIUS))  # [K, 2]
     cand = cells[..., None, :] + off  # [..., K, 2]
-    inside = (
-        (cand[..., 0] >= 0) & (cand[..., 0] < hp) & (cand[..., 1] >= 0) & (cand[..., 1] < wp)
-    )
+    inside = (cand[..., 0] >= 0) & (cand[..., 0] < hp) & (cand[..., 1] >= 0) & (cand[..., 1] < wp)
     free = inside & ~blocked[jnp.clip(cand[..., 0], 0, hp - 1), jnp.clip(cand[..., 1], 0, wp - 1)]
     first = jnp.argmax(free, axis=-1)
     found = jnp.any(free, axis=-1)
@@ -216,8 +219,9 @@ def _lane_solver(pc: float):
         if b_map:  # A * M maps
             src = src if b_src else jnp.broadcast_to(src, (a, *src.shape))
             src_ok = src_ok if b_ok else jnp.broadcast_to(src_ok, (a, *src_ok.shape))
-            dp, rounds = solve(blocked.reshape(a * m, hp, wp), src.reshape(a * m, s, 2),
-                               src_ok.reshape(a * m, s))
+            dp, rounds = solve(
+                blocked.reshape(a * m, hp, wp), src.reshape(a * m, s, 2), src_ok.reshape(a * m, s)
+            )
             dp = dp.reshape(hp + 2, wp + 2, a, m, s)
         else:  # one map set, A * S sources: [A, M, S] -> [M, A * S]
             src = src if b_src else jnp.broadcast_to(src, (a, *src.shape))
@@ -278,9 +282,7 @@ def sweep_rounds(
     return _solve(blocked, src, jnp.asarray(valid, bool) & found, preset.plan_cell_size)[1]
 
 
-def distance_fields(
-    blocked: jax.Array, sources_xy: jax.Array, preset: Preset | str
-) -> jax.Array:
+def distance_fields(blocked: jax.Array, sources_xy: jax.Array, preset: Preset | str) -> jax.Array:
     """Geodesic distance (metres) from each source: [Hp, Wp] bool, [S, 2] xy -> [S, Hp, Wp].
 
     ``inf`` where blocked or unreachable. Equals Dijkstra on the graph of the module

@@ -69,8 +69,9 @@ def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
     n = preset.plan_factor**2
     n_free = _block_counts(belief < -k, preset)
     # fine cells beyond the map edge (partial planning cells) count as occupied
-    n_occ = _block_counts(belief > k, preset) + n - _block_counts(jnp.ones(belief.shape, bool),
-                                                                  preset)
+    n_occ = (
+        _block_counts(belief > k, preset) + n - _block_counts(jnp.ones(belief.shape, bool), preset)
+    )
     n_unknown = n - n_free - n_occ
     free = (2 * n_free > n) & (n_occ == 0)
     unknown = (2 * n_unknown >= n) & (n_occ == 0)
@@ -129,8 +130,9 @@ def cluster_frontier_cells(
     d2 = jnp.where(member, (ii - ci[lab_c]) ** 2 + (jj - cj[lab_c]) ** 2, jnp.inf)
     best = jax.ops.segment_min(d2, seg, num_segments=n + 1)[:n]
     is_best = member & (d2 <= best[lab_c])
-    rep = jax.ops.segment_min(jnp.where(is_best, jnp.arange(n, dtype=jnp.int32), n), seg,
-                              num_segments=n + 1)[:n]
+    rep = jax.ops.segment_min(
+        jnp.where(is_best, jnp.arange(n, dtype=jnp.int32), n), seg, num_segments=n + 1
+    )[:n]
     root = member & (lab == jnp.arange(n))
     key = jnp.where(root & (size >= min_size), size, -1)
     top_size, top_root = lax.top_k(key, f_max)

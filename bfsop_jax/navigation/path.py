@@ -46,13 +46,14 @@ def next_cell(field: jax.Array, cell: jax.Array, preset: Preset | str):
     pc = preset.plan_cell_size
     nb = cell[None, :] + jnp.asarray(_NBR)  # [8, 2]
     inside = (nb[:, 0] >= 0) & (nb[:, 0] < hp) & (nb[:, 1] >= 0) & (nb[:, 1] < wp)
-    val = jnp.where(inside, field[jnp.clip(nb[:, 0], 0, hp - 1), jnp.clip(nb[:, 1], 0, wp - 1)],
-                    _INF)
+    val = jnp.where(
+        inside, field[jnp.clip(nb[:, 0], 0, hp - 1), jnp.clip(nb[:, 1], 0, wp - 1)], _INF
+    )
     finite = jnp.isfinite(val)
     # a diagonal needs both orthogonal cells it passes to be on the map's reachable part
-    diag_ok = jnp.stack([
-        finite[0] & finite[1], finite[2] & finite[1], finite[0] & finite[3], finite[2] & finite[3]
-    ])
+    diag_ok = jnp.stack(
+        [finite[0] & finite[1], finite[2] & finite[1], finite[0] & finite[3], finite[2] & finite[3]]
+    )
     allowed = finite & jnp.concatenate([jnp.ones(4, bool), diag_ok])
     here = field[cell[0], cell[1]]
     step_cost = jnp.asarray(np.array([pc] * 4 + [pc * math.sqrt(2.0)] * 4, np.float32))
@@ -117,8 +118,14 @@ def advance(
             heading,
         )
 
-    init = (xy, xy_to_plan_cell(xy, preset), distance_m, jnp.float32(0.0), jnp.bool_(False),
-            jnp.float32(0.0))
+    init = (
+        xy,
+        xy_to_plan_cell(xy, preset),
+        distance_m,
+        jnp.float32(0.0),
+        jnp.bool_(False),
+        jnp.float32(0.0),
+    )
     pos, cell, _, travelled, arrived, heading = lax.fori_loop(0, moves, move, init)
     # the goal's centre reached exactly at the end of the budget of moves still counts
     _, at_goal, _ = next_cell(field, cell, preset)
@@ -142,10 +149,10 @@ def is_traversable(belief: jax.Array, xy: jax.Array, preset: Preset | str) -> ja
     a = jnp.floor(xy[1] / cs).astype(jnp.int32) + off[:, None]  # [2k+1, 1] rows
     b = jnp.floor(xy[0] / cs).astype(jnp.int32) + off[None, :]  # [1, 2k+1] cols
     inside = (a >= 0) & (a < h) & (b >= 0) & (b < w)
-    occ = jnp.where(inside, belief[jnp.clip(a, 0, h - 1), jnp.clip(b, 0, w - 1)]
-                    > preset.logodds_known, True)
+    occ = jnp.where(
+        inside, belief[jnp.clip(a, 0, h - 1), jnp.clip(b, 0, w - 1)] > preset.logodds_known, True
+    )
     dy = jnp.maximum(jnp.maximum(a * cs - xy[1], xy[1] - (a + 1) * cs), 0.0)
     dx = jnp.maximum(jnp.maximum(b * cs - xy[0], xy[0] - (b + 1) * cs), 0.0)
     near = dx * dx + dy * dy < (r - 1e-6) ** 2
     return ~jnp.any(occ & near)
-

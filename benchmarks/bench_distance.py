@@ -1,0 +1,169 @@
+"""Latency of geodesic distance matrices and fields on house maps.
+
+Usage::
+
+    python -m benchmarks.bench_distance                  # smoke, demo and paper
+    python -m benchmarks.bench_distance --preset demo --points 76 --repeats 20
+
+For each preset it builds a few house maps (the procedural generator when available,
+otherwise a hand-made recursive floorplan with doors and furniture), draws ``n_points``
+random free planning cells, and times after compilation:
+
+- ``distance_matrix`` for those points (the SOP cost matrix of SPEC 8.1),
+- one ``distance_field`` (what the environment computes per macro step),
+- ``jax.vmap`` of ``distance_field`` over a batch of 16 maps (batched rollouts),
+
+plus the number of sweep rounds the solver needed. Times are wall-clock milliseconds
+with ``block_until_ready``; compile time is reported separately.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bfsop_jax.config import PRESET_NAMES, get_preset
+from bfsop_jax.navigation import (
+    distance_field,
+    distance_matrix,
+    plan_cell_to_xy,
+    true_blocked,
+)
+from bfsop_jax.navigation.distance import sweep_rounds
+
+ENV_BATCH = 16
+
+
+def handmade_occupancy(preset, rng: np.random.Generator) -> np.ndarray:
+    """[H, W] bool: recursive partition into rooms >= 3 m, 1 m doors, a few boxes."""
+    h, w = preset.grid_shape
+    occ = np.zeros((h, w), bool)
+    occ[:2], occ[-2:], occ[:, :2], occ[:, -2:] = True, True, True, True
+    side = 30  # fine cells
+    rooms = [(2, h - 2, 2, w - 2)]
+    target = preset.max_rooms
+    while len(rooms) < target:
+        rooms.sort(key=lambda r: (r[1] - r[0]) * (r[3] - r[2]))
+        i0, i1, j0, j1 = rooms.pop()
+        if max(i1 - i0, j1 - j0) < 2 * side + 2:
+            rooms.append((i0, i1, j0, j1))
+            break
+        if j1 - j0 >= i1 - i0:
+            c = int(rng.integers(j0 + side, j1 - side))
+            occ[i0:i1, c : c + 2] = True
+            d = int(rng.integers(i0 + 3, i1 - 13))
+            occ[d : d + 10, c : c + 2] = False
+            rooms += [(i0, i1, j0, c), (i0, i1, c + 2, j1)]
+        else:
+            c = int(rng.integers(i0 + side, i1 - side))
+            occ[c : c + 2, j0:j1] = True
+            d = int(rng.integers(j0 + 3, j1 - 13))
+            occ[c : c + 2, d : d + 10] = False
+            rooms += [(i0, c, j0, j1), (c + 2, i1, j0, j1)]
+    for i0, i1, j0, _ in rooms:  # two pieces of furniture against walls per room
+        for _ in range(2):
+            a = int(rng.integers(i0, max(i0 + 1, i1 - 8)))
+            occ[a : a + 6, j0 : j0 + int(rng.integers(5, 12))] = True
+    return occ
+
+
+def house_maps(preset, n: int, seed: int = 0) -> tuple[np.ndarray, str]:
+    """[n, Hp, Wp] bool planning maps of true houses, and where they came from."""
+    try:
+        from bfsop_jax.world.generator import generate_house
+
+        keys = jax.random.split(jax.random.PRNGKey(seed), n)
+        occ = jax.vmap(lambda k: generate_house(k, preset).occupied)(keys)
+        source = "generate_house"
+    except Exception as err:  # the generator is optional for this benchmark
+        rng = np.random.default_rng(seed)
+        occ = np.stack([handmade_occupancy(preset, rng) for _ in range(n)])
+        source = f"hand-made floorplans ({type(err).__name__} from generate_house)"
+    blocked = jax.vmap(lambda o: true_blocked(o, preset))(jnp.asarray(occ))
+    return np.asarray(blocked), source
+
+
+def _time(fn, *args, repeats: int) -> tuple[float, list[float]]:
+    """(compile + first run seconds, steady-state run times in ms)."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append((time.perf_counter() - t0) * 1e3)
+    return first, times
+
+
+def run(
+    preset_name: str = "demo", n_points: int = 76, repeats: int = 10, n_houses: int = 3
+) -> dict:
+    """Benchmark one preset; returns a dict of figures (milliseconds unless named)."""
+    preset = get_preset(preset_name)
+    maps, source = house_maps(preset, max(n_houses, 1))
+    rng = np.random.default_rng(1)
+    points = []
+    for b in maps:
+        free = np.argwhere(~b)
+        points.append(free[rng.choice(len(free), n_points, replace=False)])
+    points = np.stack(points).astype(np.int32)
+    xy = np.asarray(plan_cell_to_xy(points, preset))
+    valid = np.ones(n_points, bool)
+
+    matrix = jax.jit(distance_matrix, static_argnums=3)
+    field = jax.jit(distance_field, static_argnums=2)
+    batch = jax.jit(jax.vmap(distance_field, in_axes=(0, 0, None)), static_argnums=2)
+    rounds = jax.jit(sweep_rounds, static_argnums=3)
+
+    compile_s, matrix_ms, field_ms, n_rounds = [], [], [], []
+    for k in range(len(maps)):
+        first, times = _time(matrix, maps[k], xy[k], valid, preset, repeats=repeats)
+        compile_s.append(first - min(times) / 1e3)
+        matrix_ms += times
+        field_ms += _time(field, maps[k], xy[k, 0], preset, repeats=repeats)[1]
+        n_rounds.append(int(rounds(maps[k], points[k], valid, preset)))
+    reps = -(-ENV_BATCH // len(maps))
+    bmaps = np.concatenate([maps] * reps)[:ENV_BATCH]
+    bxy = np.concatenate([xy[:, 0]] * reps)[:ENV_BATCH]
+    batch_first, batch_ms = _time(batch, bmaps, bxy, preset, repeats=repeats)
+    return {
+        "preset": preset.name,
+        "plan_shape": preset.plan_shape,
+        "maps": source,
+        "n_points": n_points,
+        "compile_s": float(np.mean(compile_s)),
+        "matrix_ms_median": float(np.median(matrix_ms)),
+        "matrix_ms_min": float(np.min(matrix_ms)),
+        "sweep_rounds": n_rounds,
+        "field_ms_median": float(np.median(field_ms)),
+        f"vmap{ENV_BATCH}_fields_ms_median": float(np.median(batch_ms)),
+        "device": jax.devices()[0].platform,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--preset", choices=PRESET_NAMES, action="append")
+    parser.add_argument("--points", type=int, default=76)
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--houses", type=int, default=3)
+    args = parser.parse_args()
+    for name in args.preset or PRESET_NAMES:
+        r = run(name, args.points, args.repeats, args.houses)
+        print(
+            f"[{r['preset']}] plan grid {r['plan_shape']} ({r['maps']}), {r['device']}: "
+            f"{r['n_points']}x{r['n_points']} distance matrix "
+            f"{r['matrix_ms_median']:.1f} ms median ({r['matrix_ms_min']:.1f} min), "
+            f"compile {r['compile_s']:.2f} s, sweep rounds {r['sweep_rounds']}; "
+            f"one field {r['field_ms_median']:.2f} ms; "
+            f"vmap over {ENV_BATCH} maps {r[f'vmap{ENV_BATCH}_fields_ms_median']:.1f} ms"
+        )
+
+
+if __name__ == "__main__":
+    main()
