@@ -58,8 +58,10 @@ class Preset:
     # --- SOP (SPEC 8) -------------------------------------------------------------------
     n_loi: int = 15
     n_viewpoints: int = 5
-    viewpoint_min_m: float = 0.5
-    viewpoint_max_m: float = 1.0
+    # Viewpoints keep this clearance (metres) from their landmark's footprint: close
+    # enough to verify targets on it (1 m), far enough for the robot radius.
+    viewpoint_min_m: float = 0.3
+    viewpoint_max_m: float = 0.8
     # --- exploration (SPEC 6) -----------------------------------------------------------
     max_frontier_clusters: int = 32
 

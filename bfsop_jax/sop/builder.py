@@ -89,18 +89,26 @@ def viewpoint_candidates(
     """Candidate viewpoints around one landmark footprint.
 
     Returns ``(xy [C, 2], angle [C], offset [C])`` with C = 16 directions x 3 clearances:
-    the point in direction ``angle`` from the centre, ``offset`` metres beyond the
-    axis-aligned footprint boundary.
+    the point in direction ``angle`` from the centre whose Euclidean distance to the
+    axis-aligned footprint is exactly ``offset`` metres (a rounded-rectangle ring).
     """
     angle, offset = _candidate_offsets(preset)
     direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
-    hx, hy = half_extent[0], half_extent[1]
-    # Distance from the centre to the rectangle boundary along each direction.
-    to_edge = jnp.minimum(
-        hx / jnp.maximum(jnp.abs(direction[:, 0]), 1e-6),
-        hy / jnp.maximum(jnp.abs(direction[:, 1]), 1e-6),
-    )
-    xy = centre + direction * (to_edge + offset)[:, None]
+
+    def clearance(t):  # distance from centre + t * direction to the footprint, [C]
+        gap = jnp.abs(t[:, None] * direction) - half_extent
+        return jnp.linalg.norm(jnp.maximum(gap, 0.0), axis=-1)
+
+    # clearance(t) is monotone in t: bisect for clearance(t) == offset.
+    def bisect(_, bounds):
+        lo, hi = bounds
+        mid = 0.5 * (lo + hi)
+        short = clearance(mid) < offset
+        return jnp.where(short, mid, lo), jnp.where(short, hi, mid)
+
+    hi = jnp.full(angle.shape, 1.0) * (jnp.linalg.norm(half_extent) + offset)
+    lo, hi = jax.lax.fori_loop(0, 24, bisect, (jnp.zeros_like(hi), hi))
+    xy = centre + direction * hi[:, None]
     return xy, jnp.asarray(angle), jnp.asarray(offset)
 
 
