@@ -43,6 +43,17 @@ def _save(fig: plt.Figure, path: str | Path | None) -> None:
         fig.savefig(path, dpi=fig.dpi, bbox_inches="tight")
 
 
+def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """Square dilation of a boolean image by ``radius`` cells (NumPy only)."""
+    h, w = mask.shape
+    padded = np.pad(mask, radius)
+    out = np.zeros_like(mask)
+    for dy in range(2 * radius + 1):
+        for dx in range(2 * radius + 1):
+            out |= padded[dy : dy + h, dx : dx + w]
+    return out
+
+
 def plot_house(
     house: House,
     path: str | Path | None = None,
@@ -78,9 +89,13 @@ def plot_house(
     floor_cmap = ListedColormap(["white", *ROOM_COLOURS])
     ax.imshow(kind, origin="lower", extent=extent, cmap=floor_cmap, vmin=0, vmax=len(ROOM_COLOURS),
               interpolation="nearest")  # fmt: skip
-    wall = occupied & (room_of_cell < 0)
+    # Walls are occupied non-room cells next to a room; farther out is the outside.
+    near_room = _dilate(room_of_cell >= 0, radius=2)
+    wall = occupied & (room_of_cell < 0) & near_room
+    outside = (room_of_cell < 0) & ~near_room
     blocked = occupied & (room_of_cell >= 0)  # furniture and filled pockets
     overlay = np.zeros((h, w, 4))
+    overlay[outside] = (0.85, 0.85, 0.85, 1.0)
     overlay[wall] = (0.0, 0.0, 0.0, 1.0)
     overlay[blocked] = (0.35, 0.3, 0.25, 0.35)
     ax.imshow(overlay, origin="lower", extent=extent, interpolation="nearest")

@@ -9,6 +9,7 @@ from bfsop_jax.world.constants import (
     target_id,
 )
 from bfsop_jax.world.generator import generate_house
+from bfsop_jax.world.procthor import load_procthor_house
 from bfsop_jax.world.types import House
 
 __all__ = [
@@ -19,5 +20,6 @@ __all__ = [
     "House",
     "category_id",
     "generate_house",
+    "load_procthor_house",
     "target_id",
 ]
