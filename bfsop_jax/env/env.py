@@ -25,7 +25,12 @@ import jax.numpy as jnp
 from bfsop_jax.config import Preset, get_preset
 from bfsop_jax.env.types import Action, EnvState, StepInfo
 from bfsop_jax.navigation.distance import distance_field
-from bfsop_jax.navigation.grid import plan_cell_to_xy, planning_blocked, true_blocked
+from bfsop_jax.navigation.grid import (
+    plan_cell_to_xy,
+    planning_blocked,
+    true_blocked,
+    xy_to_plan_cell,
+)
 from bfsop_jax.navigation.path import advance, is_traversable
 from bfsop_jax.sensing.detection import landmarks_of_interest, observe, verified_targets
 from bfsop_jax.sensing.mapping import update_belief
@@ -158,7 +163,10 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
         remaining = jnp.maximum(state.budget - state.path_length, 0.0)
         step_len = jnp.minimum(preset.move_step_m, remaining)
         new_xy, travelled, reached, heading = advance(field, state.pose[:2], step_len, preset)
-        traversable = is_traversable(state.belief, new_xy, preset)
+        # The gate uses the planner's own rule on the cell being entered, so a path the
+        # planner allowed only fails it when newly seen obstacles block that cell.
+        entered = plan_cell_to_xy(xy_to_plan_cell(new_xy, preset), preset)
+        traversable = is_traversable(state.belief, entered, preset)
         # Nothing to descend and not at the goal: the goal is cut off on this map.
         stuck = active & ~reached & (travelled <= 0.0)
         moving = active & traversable & (travelled > 0.0)
@@ -179,8 +187,7 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
         )
         return carry, (state.pose, moving, jnp.where(moving, travelled, 0.0))
 
-    start_unreachable = ~jnp.isfinite(_field_at(field, state.pose[:2], preset))
-    init = (state, jnp.zeros((), bool), jnp.zeros((), bool), start_unreachable)
+    init = (state, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), bool))
     (state, arrived, blocked, unreachable), (poses, moved, travelled) = jax.lax.scan(
         motion_step, init, None, length=preset.micro_steps
     )
@@ -202,11 +209,3 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
         new_found=(state.found.sum() - found_before).astype(jnp.int32),
     )
     return state, info
-
-
-def _field_at(field: jax.Array, xy: jax.Array, preset: Preset) -> jax.Array:
-    """Value of a planning-grid field at the cell containing ``xy``."""
-    hp, wp = preset.plan_shape
-    ij = jnp.floor(xy[::-1] / preset.plan_cell_size).astype(jnp.int32)
-    ij = jnp.clip(ij, 0, jnp.array([hp - 1, wp - 1]))
-    return field[ij[0], ij[1]]
