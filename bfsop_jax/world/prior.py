@@ -95,6 +95,7 @@ def save_prior(path: str | os.PathLike, prior: np.ndarray, meta: dict | None = N
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     with os.fdopen(fd, "w") as f:
         json.dump(doc, f, indent=1)
+    os.chmod(tmp, 0o644)  # mkstemp creates owner-only files
     os.replace(tmp, path)
 
 
