@@ -102,10 +102,48 @@ _HOUSE_PLANT = C.TARGET_NAMES.index("HousePlant")
 _N_CANDIDATES = 32  # random placements tried per furniture slot (half of them shrunk)
 _N_DOOR_CANDIDATES = 32  # random door positions tried per partition line
 _DOOR_WIDTH_M = (0.9, 1.2)
-_DOOR_ZONE_DEPTH_M = 0.9  # furniture-free depth in front of a door, both sides
-_DOOR_ZONE_SIDE_M = 0.2  # ... and beyond the door's jambs
+_DOOR_ZONE_SIDE_M = 0.1  # furniture-free margin beyond a door's jambs (its depth: a passage)
 _DOOR_JUNCTION_M = 0.3  # door gap to a perpendicular wall, beyond the wall itself
 _CORNER_SNAP = 0.35  # chance that a wall piece is pushed into a corner
+
+
+def _beta_quantiles(a: float, b: float, n: int = 2049) -> tuple[np.ndarray, np.ndarray]:
+    """(probabilities, quantiles) table of Beta(a, b), a, b > 1; probabilities are dense
+    near 0 and 1, where the quantile function is steep."""
+    x = np.linspace(0.0, 1.0, 200001)
+    inner = x[1:-1]
+    pdf = np.zeros_like(x)
+    pdf[1:-1] = np.exp((a - 1) * np.log(inner) + (b - 1) * np.log1p(-inner))
+    cdf = np.concatenate([[0.0], np.cumsum((pdf[1:] + pdf[:-1]) / 2)])
+    prob = (1.0 - np.cos(np.linspace(0.0, np.pi, n))) / 2
+    return prob.astype(np.float32), np.interp(prob, cdf / cdf[-1], x).astype(np.float32)
+
+
+# ProcTHOR's house bias is 0.4 * Beta(3.5, 1.9) - 0.3. Drawn by inverse CDF from a table:
+# exact to ~1e-4 and far cheaper to compile than jax.random.beta's rejection sampler.
+_HOUSE_BETA_TABLE = _beta_quantiles(3.5, 1.9)
+
+
+def sample_house_bias(u: jax.Array) -> jax.Array:
+    """ProcTHOR's per-house placement bias 0.4 * Beta(3.5, 1.9) - 0.3 from uniforms ``u``."""
+    prob, quantile = _HOUSE_BETA_TABLE
+    return 0.4 * jnp.interp(u, prob, quantile) - 0.3
+
+
+def _uniforms(key: jax.Array, *shapes: tuple[int, ...]) -> list[jax.Array]:
+    """Uniform [0, 1) arrays of the given shapes from a single PRNG call.
+
+    One call per generation stage keeps the compiled program small: every
+    ``jax.random`` call inlines its own counter-based hash.
+    """
+    sizes = [math.prod(shape) for shape in shapes]
+    flat = jax.random.uniform(key, (sum(sizes),))
+    parts = jnp.split(flat, np.cumsum(sizes)[:-1]) if len(sizes) > 1 else [flat]
+    return [part.reshape(shape) for part, shape in zip(parts, shapes, strict=True)]
+
+
+def _gumbel(u: jax.Array) -> jax.Array:
+    return -jnp.log(-jnp.log(jnp.clip(u, 1e-12, 1.0 - 1e-7)))
 
 
 def _wall_cells(preset: Preset) -> tuple[int, int]:
@@ -147,63 +185,56 @@ def generate_floorplan(key: jax.Array, preset: Preset | str) -> Floorplan:
     n_slots = preset.max_rooms
     tl, tr = _wall_cells(preset)
     min_side = int(math.ceil(preset.min_room_side_m / preset.cell_size - 1e-6))
-    k_count, k_split, k_door, k_extra = jax.random.split(key, 4)
-    n_rooms = jax.random.randint(k_count, (), preset.min_rooms, preset.max_rooms + 1)
-
-    rect = (
-        jnp.zeros((n_slots, 4), jnp.int32)
-        .at[0]
-        .set(jnp.array([tl, tl, w_cells - tr, h_cells - tr], jnp.int32))
+    n_lines = n_slots - 1
+    n_cand = _N_DOOR_CANDIDATES
+    u_count, u_pick, u_pos, u_door, u_extra = _uniforms(
+        key, (), (n_lines, n_slots), (n_lines,), (n_lines, 3, n_cand), (n_lines,)
     )
+    n_rooms = preset.min_rooms + jnp.floor(u_count * (preset.max_rooms - preset.min_rooms + 1))
+    n_rooms = n_rooms.astype(jnp.int32)
+
+    rect = jnp.zeros((n_slots, 4), jnp.int32)
+    rect = rect.at[0].set(jnp.array([tl, tl, w_cells - tr, h_cells - tr], jnp.int32))
     valid = jnp.zeros(n_slots, bool).at[0].set(True)
-    lines = jnp.zeros((n_slots - 1, 4), jnp.int32)
-    line_valid = jnp.zeros(n_slots - 1, bool)
+    lines = jnp.zeros((n_lines, 4), jnp.int32)
+    line_valid = jnp.zeros(n_lines, bool)
 
     def split(i, carry):
         rect, valid, lines, line_valid = carry
-        k_pick, k_pos = jax.random.split(jax.random.fold_in(k_split, i))
         w = rect[:, 2] - rect[:, 0]
         h = rect[:, 3] - rect[:, 1]
         can = valid & (jnp.maximum(w, h) >= 2 * min_side) & (i + 1 < n_rooms)
         # Large rooms are split first, with some randomness (area^2-weighted choice).
         area = jnp.maximum(w * h, 1).astype(jnp.float32)
-        score = jnp.where(
-            can, 2.0 * jnp.log(area) + jax.random.gumbel(k_pick, (n_slots,)), -jnp.inf
-        )
+        score = jnp.where(can, 2.0 * jnp.log(area) + _gumbel(u_pick[i]), -jnp.inf)
         r = jnp.argmax(score)
         ok = can[r]
         x0, y0, x1, y1 = rect[r]
         vertical = w[r] >= h[r]  # split across the longer side with a vertical wall x = c
         start = jnp.where(vertical, x0, y0)
         length = jnp.where(vertical, w[r], h[r])
-        frac = jax.random.uniform(k_pos, minval=0.25, maxval=0.75)
+        frac = 0.25 + 0.5 * u_pos[i]
         offset = jnp.clip(jnp.round(frac * length).astype(jnp.int32), min_side, length - min_side)
         c = start + offset
         near = jnp.where(vertical, jnp.stack([x0, y0, c, y1]), jnp.stack([x0, y0, x1, c]))
         far = jnp.where(vertical, jnp.stack([c, y0, x1, y1]), jnp.stack([x0, c, x1, y1]))
-        line = jnp.stack(
-            [
-                vertical.astype(jnp.int32),
-                c,
-                jnp.where(vertical, y0, x0),
-                jnp.where(vertical, y1, x1),
-            ]
-        )
+        across = jnp.where(vertical, jnp.stack([y0, y1]), jnp.stack([x0, x1]))
+        line = jnp.concatenate([jnp.stack([vertical.astype(jnp.int32), c]), across])
         # Selects instead of indexed updates: rect[r] is read and rewritten in one step.
         slot = jnp.arange(n_slots)[:, None]
         rect = jnp.where(ok & (slot == r), near, jnp.where(ok & (slot == i + 1), far, rect))
         valid = valid | (ok & (slot[:, 0] == i + 1))
-        at_i = ok & (jnp.arange(n_slots - 1) == i)
+        at_i = ok & (jnp.arange(n_lines) == i)
         lines = jnp.where(at_i[:, None], line, lines)
         line_valid = line_valid | at_i
         return rect, valid, lines, line_valid
 
     rect, valid, lines, line_valid = jax.lax.fori_loop(
-        0, n_slots - 1, split, (rect, valid, lines, line_valid)
+        0, n_lines, split, (rect, valid, lines, line_valid)
     )
 
     # Obstacles along each line for door placement: its two ends and every perpendicular
-    # wall ending on it (T-junction), as (position along the line, keep-out radius).
+    # wall ending on it (T-junction).
     vert, coord, lo, hi = lines.T
     ends_on = (lo[None, :] == coord[:, None]) | (hi[None, :] == coord[:, None])
     touches = (
@@ -213,57 +244,44 @@ def generate_floorplan(key: jax.Array, preset: Preset | str) -> Floorplan:
         & (coord[None, :] >= lo[:, None])
         & (coord[None, :] <= hi[:, None])
     )
-    far_away = jnp.float32(-1e6)
-    junction = jnp.where(touches, coord[None, :].astype(jnp.float32), far_away)
+    junction = jnp.where(touches, coord[None, :], -(10**6))
     junction = jnp.concatenate([junction, lo[:, None], hi[:, None]], axis=1).astype(jnp.float32)
     keep_out = float(tr + tl) + _DOOR_JUNCTION_M / preset.cell_size
-
     door_min = int(round(_DOOR_WIDTH_M[0] / preset.cell_size))
     door_max = int(round(_DOOR_WIDTH_M[1] / preset.cell_size))
 
-    def place_door(key, k, avoid_at, avoid_radius):
-        """Door gap on line k away from junctions and from one other gap (avoid_at)."""
-        k_w, k_u, k_pick = jax.random.split(key, 3)
-        width = jax.random.randint(k_w, (), door_min, door_max + 1)
+    def place_doors(k, u):
+        """Random door candidates on line k: the spanning door and a possible second one."""
+        width = door_min + jnp.floor(u[0] * (door_max - door_min + 1)).astype(jnp.int32)
         half = (width + 1) // 2
-        centre = jnp.round(lo[k] + (hi[k] - lo[k]) * jax.random.uniform(k_u, (_N_DOOR_CANDIDATES,)))
-        gap = jnp.min(jnp.abs(centre[:, None] - junction[k][None, :]), axis=1) - half - keep_out
-        gap = jnp.minimum(gap, jnp.abs(centre - avoid_at) - half - avoid_radius)
-        fits = gap >= 0
-        pick = jnp.argmax(jnp.where(fits, jax.random.uniform(k_pick, centre.shape), gap - 1e4))
-        d = centre[pick].astype(jnp.int32) - half
-        door = jnp.stack([vert[k], coord[k], d, d + width])
-        return door, fits[pick], centre[pick], half
+        centre = jnp.round(lo[k] + (hi[k] - lo[k]) * u[1])
+        clear = jnp.min(jnp.abs(centre[:, None] - junction[k][None, :]), axis=1) - half - keep_out
+        fits = clear >= 0
+        first = jnp.argmax(jnp.where(fits, u[2], clear - 1e4))  # best clearance if none fits
+        # A second door keeps >= 1 m of wall from the first.
+        apart = jnp.abs(centre - centre[first]) - half - half[first] - 1.0 / preset.cell_size
+        second_fits = fits & (apart >= 0)
+        second = jnp.argmax(jnp.where(second_fits, u[2], -1.0))
+        gap = (centre - half).astype(jnp.int32)
+        door = lambda j: jnp.stack([vert[k], coord[k], gap[j], gap[j] + width[j]])
+        return door(first), door(second), second_fits[second]
 
-    n_lines = n_slots - 1
-    line_ids = jnp.arange(n_lines)
-    doors, _, door_centre, door_half = jax.vmap(place_door)(
-        jax.random.split(k_door, n_lines), line_ids, jnp.full(n_lines, far_away), jnp.zeros(n_lines)
-    )
-    # The spanning door of a line is always cut (best clearance if nothing fits perfectly).
+    doors, seconds, second_ok = jax.vmap(place_doors)(jnp.arange(n_lines), u_door)
+    # The spanning door of a line is always cut.
     door_valid = line_valid
-
     if preset.extra_doors > 0:
-        # Extra doors go on long lines (length-weighted choice without replacement).
-        k_pick, k_place = jax.random.split(k_extra)
+        # Extra doors: second doors on long lines (length-weighted, without replacement).
         length = (hi - lo).astype(jnp.float32)
         score = jnp.where(
-            line_valid & (length >= 2 * min_side),
-            jnp.log(jnp.maximum(length, 1.0)) + jax.random.gumbel(k_pick, (n_lines,)),
+            line_valid & second_ok & (length >= 2 * min_side),
+            jnp.log(jnp.maximum(length, 1.0)) + _gumbel(u_extra),
             -jnp.inf,
         )
         n_extra = min(preset.extra_doors, n_lines)
         top_score, top = jax.lax.top_k(score, n_extra)
-        extra, extra_fits, _, _ = jax.vmap(place_door)(
-            jax.random.split(k_place, n_extra),
-            top,
-            door_centre[top],
-            (door_half[top] + 1.0 / preset.cell_size).astype(jnp.float32),
-        )
-        extra_valid = jnp.isfinite(top_score) & extra_fits
         pad = preset.extra_doors - n_extra
-        doors = jnp.concatenate([doors, extra, jnp.zeros((pad, 4), jnp.int32)])
-        door_valid = jnp.concatenate([door_valid, extra_valid, jnp.zeros(pad, bool)])
+        doors = jnp.concatenate([doors, seconds[top], jnp.zeros((pad, 4), jnp.int32)])
+        door_valid = jnp.concatenate([door_valid, jnp.isfinite(top_score), jnp.zeros(pad, bool)])
     doors = jnp.where(door_valid[:, None], doors, 0)
     return Floorplan(rect, valid, lines, line_valid, doors, door_valid)
 
@@ -299,8 +317,27 @@ def _rasterise(rects: jax.Array, weight: jax.Array, shape: tuple[int, int]) -> j
 
 
 # --- stage 2: room types -------------------------------------------------------------------
-def _assign_room_types(key: jax.Array, plan: Floorplan) -> jax.Array:
-    """[R] int32 room types; smallest rooms are bathrooms, -1 for unused slots."""
+def _door_degree(plan: Floorplan, preset: Preset) -> jax.Array:
+    """[R] int32 number of door gaps opening into each room."""
+    vert, c, lo, hi = plan.door.astype(jnp.float32).T
+    mid = (lo + hi) / 2
+    side = jnp.stack([c - 1.5, c + 1.5], axis=1)  # a point just beyond the wall on each side
+    px = jnp.where(vert[:, None] == 1, side, mid[:, None])  # [D, 2]
+    py = jnp.where(vert[:, None] == 1, mid[:, None], side)
+    x0, y0, x1, y1 = plan.room_rect.astype(jnp.float32).T
+    inside = (
+        (px[..., None] >= x0) & (px[..., None] < x1) & (py[..., None] >= y0) & (py[..., None] < y1)
+    )  # [D, 2, R]
+    return jnp.sum(inside & plan.door_valid[:, None, None], axis=(0, 1)).astype(jnp.int32)
+
+
+def _assign_room_types(key: jax.Array, plan: Floorplan, preset: Preset) -> jax.Array:
+    """[R] int32 room types, -1 for unused slots.
+
+    The smallest rooms are bathrooms; living rooms are the hubs (most doors, then larger
+    rooms first), which also leaves the quieter rooms, with more free wall, to kitchens and
+    bedrooms; kitchens and bedrooms share the rest at random.
+    """
     valid = plan.room_valid
     area = (plan.room_rect[:, 2] - plan.room_rect[:, 0]) * (
         plan.room_rect[:, 3] - plan.room_rect[:, 1]
@@ -312,16 +349,15 @@ def _assign_room_types(key: jax.Array, plan: Floorplan) -> jax.Array:
     n_bath = quota[C.BATHROOM]
     bath_rank = jnp.argsort(jnp.argsort(jnp.where(valid, area, jnp.inf)))
     bath = valid & (bath_rank < n_bath)
-    # Living rooms favour large rooms; kitchens and bedrooms share the rest at random.
-    size = area * jax.random.uniform(key, area.shape, minval=0.5, maxval=1.5)
-    rank = jnp.argsort(jnp.argsort(jnp.where(valid & ~bath, -size, jnp.inf)))
-    n_living, n_kitchen = quota[C.LIVING_ROOM], quota[C.KITCHEN]
-    other = jnp.where(
-        rank < n_living,
-        C.LIVING_ROOM,
-        jnp.where(rank < n_living + n_kitchen, C.KITCHEN, C.BEDROOM),
+    u_size, u_kitchen = _uniforms(key, area.shape, area.shape)
+    hub = _door_degree(plan, preset) + area / jnp.max(area) * (0.5 + u_size)
+    living_rank = jnp.argsort(jnp.argsort(jnp.where(valid & ~bath, -hub, jnp.inf)))
+    living = valid & ~bath & (living_rank < quota[C.LIVING_ROOM])
+    kitchen_rank = jnp.argsort(jnp.argsort(jnp.where(valid & ~bath & ~living, u_kitchen, 2.0)))
+    kitchen = valid & ~bath & ~living & (kitchen_rank < quota[C.KITCHEN])
+    room_type = jnp.where(
+        bath, C.BATHROOM, jnp.where(living, C.LIVING_ROOM, jnp.where(kitchen, C.KITCHEN, C.BEDROOM))
     )
-    room_type = jnp.where(bath, C.BATHROOM, other)
     return jnp.where(valid, room_type, -1).astype(jnp.int32)
 
 
@@ -337,7 +373,7 @@ def _door_zones(plan: Floorplan, preset: Preset) -> jax.Array:
     """[D, 4] (x0, y0, x1, y1) metres kept free of furniture in front of each door."""
     tl, tr = _wall_cells(preset)
     cs = preset.cell_size
-    depth = _DOOR_ZONE_DEPTH_M / cs
+    depth = passage_m(preset) / cs
     side = _DOOR_ZONE_SIDE_M / cs
     vert, c, lo, hi = plan.door.astype(jnp.float32).T
     across = jnp.stack([c - tl - depth, c + tr + depth], axis=1)
@@ -366,35 +402,55 @@ def _furnish(key: jax.Array, plan: Floorplan, room_type: jax.Array, preset: Pres
     footprint = jnp.asarray(_FOOTPRINT)
     eps = 1e-4
 
-    def place(carry, s):
+    n_slot = N_FURNITURE_SLOTS
+    u_cand, u_axis, u_want = _uniforms(
+        key, (n_slot, 4, n_rooms, n_cand), (n_slot, 3, n_rooms, n_cand, 2), (n_slot, n_rooms)
+    )
+
+    def place(carry, xs):
         centre, half, placed = carry  # [R, S, 2], [R, S, 2], [R, S]
-        ks = jax.random.split(jax.random.fold_in(key, s), 8)
+        s, u_c, u_a, u_w = xs  # slot, then its uniforms [4, R, K], [3, R, K, 2], [R]
         cat = slot_cat[:, s]
         free = slot_free[:, s][:, None]
-        shrink = jax.random.uniform(ks[0], (n_rooms, n_cand), minval=0.65, maxval=0.95)
-        scale = jnp.where(jnp.arange(n_cand) < n_cand // 2, 1.0, shrink)
+        # Candidates: the second half are shrunk copies (never a plant: a target keeps its
+        # size); in each half the first 8 try every corner of every wall, the rest roam.
+        k = jnp.arange(n_cand)
+        shrinkable = (k >= n_cand // 2)[None, :] & (cat >= C.N_TARGETS)[:, None]
+        scale = jnp.where(shrinkable, 0.65 + 0.3 * u_c[0], 1.0)
+        corner = (k % (n_cand // 2) < 8)[None, :]
         along = footprint[jnp.maximum(cat, 0), 0][:, None] * scale
         depth = footprint[jnp.maximum(cat, 0), 1][:, None] * scale
-        side = jax.random.randint(ks[1], (n_rooms, n_cand), 0, 4)  # wall: -y, +y, -x, +x
+        side = jnp.where(corner, k % 4, jnp.floor(u_c[1] * 4).astype(jnp.int32))  # -y +y -x +x
         on_y_wall = side < 2
-        turned = jnp.where(free, jax.random.bernoulli(ks[2], 0.5, side.shape), ~on_y_wall)
+        turned = jnp.where(free, u_c[2] < 0.5, ~on_y_wall)
         h = jnp.stack([jnp.where(turned, depth, along), jnp.where(turned, along, depth)], -1) / 2
         flush_lo = ~free[..., None] & jnp.stack([side == 2, side == 0], -1)
         flush_hi = ~free[..., None] & jnp.stack([side == 3, side == 1], -1)
         snap = (
             ~free[..., None]
             & jnp.stack([on_y_wall, ~on_y_wall], -1)
-            & jax.random.bernoulli(ks[3], _CORNER_SNAP, h.shape)
+            & (corner[..., None] | (u_a[0] < _CORNER_SNAP))
         )
-        to_lo = jax.random.bernoulli(ks[4], 0.5, h.shape)
-        u = jax.random.uniform(ks[5], h.shape)
+        to_lo = jnp.where(corner[..., None], (k % 8 < 4)[None, :, None], u_a[1] < 0.5)
         lo_, hi_ = lo[:, None, :], hi[:, None, :]
-        roam = lo_ + clear + h + u * jnp.maximum(hi_ - lo_ - 2 * (clear + h), 0.0)
+        roam = lo_ + clear + h + u_a[2] * jnp.maximum(hi_ - lo_ - 2 * (clear + h), 0.0)
         c = jnp.where(
             flush_lo | (snap & to_lo),
             lo_ + h,
             jnp.where(flush_hi | (snap & ~to_lo), hi_ - h, roam),
         )  # [R, K, 2]
+        # Last resort for a required piece: free-standing in the middle of the room, shrunk
+        # to leave a passage all round (always valid while the room is still empty).
+        required = slot_prob[:, s] >= 1.0
+        room_span = hi - lo - 2 * clear  # [R, 2]
+        size = footprint[jnp.maximum(cat, 0)]  # [R, 2] (along, depth)
+        fit_plain = jnp.min(room_span / size, axis=1)
+        fit_turned = jnp.min(room_span / size[:, ::-1], axis=1)
+        fit = 0.98 * jnp.minimum(jnp.maximum(fit_plain, fit_turned), 1.0)
+        h_mid = jnp.where((fit_turned > fit_plain)[:, None], size[:, ::-1], size) * fit[:, None] / 2
+        last = required[:, None] & (k == n_cand - 1)[None, :]
+        c = jnp.where(last[..., None], ((lo + hi) / 2)[:, None, :], c)
+        h = jnp.where(last[..., None], h_mid[:, None, :], h)
         # Each gap to a wall is either zero (flush) or a full passage; never flush on two
         # opposite walls (the piece would span the room).
         gap_lo = c - h - lo_
@@ -414,23 +470,28 @@ def _furnish(key: jax.Array, plan: Floorplan, room_type: jax.Array, preset: Pres
             & (c[..., None, 1] - h[..., None, 1] < zones[:, 3])
         )
         ok &= ~jnp.any(in_zone, axis=-1)
-        preference = jax.random.uniform(ks[6], ok.shape) + (scale == 1.0)
+        preference = jnp.where(last, -0.5, u_c[3] + (scale == 1.0))
         best = jnp.argmax(jnp.where(ok, preference, -1.0), axis=1)
-        wanted = (cat >= 0) & (jax.random.uniform(ks[7], (n_rooms,)) < slot_prob[:, s])
+        wanted = (cat >= 0) & (u_w < slot_prob[:, s])
         put = wanted & jnp.take_along_axis(ok, best[:, None], 1)[:, 0]
         rows = jnp.arange(n_rooms)
-        centre = centre.at[:, s].set(jnp.where(put[:, None], c[rows, best], 0.0))
-        half = half.at[:, s].set(jnp.where(put[:, None], h[rows, best], 0.0))
-        placed = placed.at[:, s].set(put)
+        this_slot = (jnp.arange(n_slot) == s)[None, :]
+        centre = jnp.where(
+            this_slot[..., None], jnp.where(put[:, None], c[rows, best], 0.0)[:, None], centre
+        )
+        half = jnp.where(
+            this_slot[..., None], jnp.where(put[:, None], h[rows, best], 0.0)[:, None], half
+        )
+        placed = jnp.where(this_slot, put[:, None], placed)
         return (centre, half, placed), None
 
-    n_slot = N_FURNITURE_SLOTS
     init = (
         jnp.zeros((n_rooms, n_slot, 2)),
         jnp.zeros((n_rooms, n_slot, 2)),
         jnp.zeros((n_rooms, n_slot), bool),
     )
-    (centre, half, placed), _ = jax.lax.scan(place, init, jnp.arange(n_slot))
+    xs = (jnp.arange(n_slot), u_cand, u_axis, u_want)
+    (centre, half, placed), _ = jax.lax.scan(place, init, xs)
     return _Furniture(jnp.where(placed, slot_cat, -1), centre, half)
 
 
@@ -445,26 +506,22 @@ def _spawn_targets(
     most ``MAX_COPIES_PER_RECEPTACLE``); Apple, Laptop, SoapBottle and HousePlant at most
     once per room (a floor HousePlant counts).
     """
-    k_bias, k_room, k_first, k_more, k_pick = jax.random.split(key, 5)
     n_pieces = category.shape[0]
     copies = C.MAX_COPIES_PER_RECEPTACLE
-    house_bias = 0.4 * jax.random.beta(k_bias, 3.5, 1.9) - 0.3
+    shape = (n_pieces, C.N_TARGETS)
+    u_bias, u_pair, u_more = _uniforms(key, (), (3, *shape), (*shape, copies - 1))
+    house_bias = sample_house_bias(u_bias)
     receptacle = C.is_receptacle(category)
     rec = jnp.clip(category - C.FIRST_RECEPTACLE, 0, C.N_RECEPTACLES - 1)
     p = jnp.where(receptacle[:, None], jnp.asarray(C.SPAWN_PROB)[rec], 0.0)  # [P, T]
     kind = jnp.maximum(room_type[jnp.maximum(room, 0)], 0)
     room_weight = jnp.asarray(C.TARGET_ROOM_WEIGHT).T[kind]  # [P, T]
-    shape = (n_pieces, C.N_TARGETS)
     bias = jnp.asarray(C.PARENT_BIAS)[rec][:, None] + jnp.asarray(C.CHILD_BIAS)[None, :]
-    u_first = jax.random.uniform(k_first, shape)
-    first = (
-        (p > 0)
-        & (jax.random.uniform(k_room, shape) < room_weight)
-        & (u_first <= p + bias + house_bias)
-    )
+    u_first = u_pair[0]
+    first = (p > 0) & (u_pair[1] < room_weight) & (u_first <= p + bias + house_bias)
     # One-per-room targets: keep the pair with the smallest draw in each room.
     slot_room = jnp.where(receptacle, room, n_rooms)  # non-receptacles go to a dummy segment
-    draw = jnp.where(first, jax.random.uniform(k_pick, shape), 2.0)
+    draw = jnp.where(first, u_pair[2], 2.0)
     room_min = jax.ops.segment_min(draw, slot_room, num_segments=n_rooms + 1)
     floor_plant = jax.ops.segment_max(
         (category == _HOUSE_PLANT).astype(jnp.int32),
@@ -476,7 +533,7 @@ def _spawn_targets(
     )
     one = jnp.asarray(_ONE_PER_ROOM)[None, :]
     first &= ~one | single
-    more = jax.random.uniform(k_more, (*shape, copies - 1)) <= p[..., None]
+    more = u_more <= p[..., None]
     more = (
         jnp.cumprod(more.astype(jnp.int32), axis=-1).astype(bool)
         & first[..., None]
@@ -547,10 +604,10 @@ def generate_house(key: jax.Array, preset: Preset | str = "demo") -> House:
     cs = preset.cell_size
     n_rooms, n_obj = preset.max_rooms, preset.max_objects
     tl, tr = _wall_cells(preset)
-    k_plan, k_type, k_furn, k_spawn, k_xy, k_order = jax.random.split(key, 6)
+    k_plan, k_type, k_furn, k_spawn, k_place = jax.random.split(key, 5)
 
     plan = generate_floorplan(k_plan, preset)
-    room_type = _assign_room_types(k_type, plan)
+    room_type = _assign_room_types(k_type, plan, preset)
     furniture = _furnish(k_furn, plan, room_type, preset)
 
     # Furniture slots in room order; slots beyond capacity are dropped entirely.
@@ -571,10 +628,11 @@ def generate_house(key: jax.Array, preset: Preset | str = "demo") -> House:
     size = jnp.asarray(C.CATEGORY_SIZE_M)
     # A target stands anywhere on its receptacle's top (fully inside the footprint if it fits).
     room_to_spare = jnp.maximum(piece_half[tgt_parent] - size[tgt_cat, None] / 2, 0.0)
-    u = jax.random.uniform(k_xy, (tgt_cat.shape[0], 2), minval=-1.0, maxval=1.0)
+    u_xy, u_order = _uniforms(k_place, (tgt_cat.shape[0], 2), (tgt_cat.shape[0],))
+    u = 2.0 * u_xy - 1.0
     tgt_xy = piece_centre[tgt_parent] + u * room_to_spare
     # Targets fill the remaining slots in random order (a full house drops a random subset).
-    tgt_order = jnp.argsort(jnp.where(tgt_valid, jax.random.uniform(k_order, tgt_valid.shape), 2.0))
+    tgt_order = jnp.argsort(jnp.where(tgt_valid, u_order, 2.0))
     n_targets = jnp.sum(tgt_valid)
 
     slot = jnp.arange(n_obj)
