@@ -19,7 +19,7 @@ from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from bfsop_jax.world import constants as C  # noqa: E402
 from bfsop_jax.world.types import House  # noqa: E402
 
-__all__ = ["plot_house"]
+__all__ = ["plot_belief", "plot_house", "plot_trajectory"]
 
 ROOM_COLOURS: tuple[str, ...] = ("#f6d8a8", "#cfe3c1", "#c9d8ef", "#d7ecef")  # by room type
 TARGET_COLOURS: tuple[str, ...] = (
@@ -145,6 +145,143 @@ def plot_house(
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
+    if title is not None:
+        ax.set_title(title)
+    _save(fig, path)
+    return fig
+
+
+def _belief_image(belief: np.ndarray, known: float) -> np.ndarray:
+    """RGB image of a log-odds map: unknown grey, known free white, known occupied black."""
+    img = np.full(belief.shape + (3,), 0.72)
+    img[belief < -known] = 1.0
+    img[belief > known] = 0.0
+    return img
+
+
+def plot_belief(
+    belief,
+    preset,
+    path: str | Path | None = None,
+    ax: plt.Axes | None = None,
+    frontiers=None,
+    landmarks: tuple[np.ndarray, np.ndarray] | None = None,
+    pose=None,
+    title: str | None = None,
+) -> plt.Figure:
+    """The agent's belief map: unknown grey, free white, occupied black.
+
+    Args:
+        belief: [H, W] log-odds on the 0.1 m grid.
+        preset: the preset (cell size, known threshold).
+        frontiers: optional ``Frontiers`` (cluster points, drawn orange, sized by cluster)
+            or a [Hp, Wp] bool frontier-cell mask on the planning grid.
+        landmarks: optional ``(xy [L, 2], category [L])`` landmarks of interest (squares
+            labelled by category).
+        pose: optional [3] agent pose (arrow).
+    """
+    belief = np.asarray(belief)
+    cs = preset.cell_size
+    h, w = belief.shape
+    extent = (0.0, w * cs, 0.0, h * cs)
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(2.0 + w * cs / 3.2, h * cs / 3.2), dpi=110)
+    else:
+        fig = ax.figure
+    ax.imshow(_belief_image(belief, preset.logodds_known), origin="lower", extent=extent,
+              interpolation="nearest")  # fmt: skip
+    handles = []
+    if frontiers is not None:
+        if hasattr(frontiers, "xy"):
+            valid = np.asarray(frontiers.valid)
+            fxy, size = np.asarray(frontiers.xy)[valid], np.asarray(frontiers.size)[valid]
+            ax.scatter(fxy[:, 0], fxy[:, 1], s=8 + 2 * size, c="#ff7f0e", edgecolors="black",
+                       linewidths=0.4, zorder=4)  # fmt: skip
+        else:
+            mask = np.asarray(frontiers)
+            pc = preset.plan_cell_size
+            ii, jj = np.nonzero(mask)
+            ax.scatter((jj + 0.5) * pc, (ii + 0.5) * pc, s=3, c="#ff7f0e", marker="s", zorder=4)
+        handles.append(Line2D([], [], linestyle="", marker="o", markerfacecolor="#ff7f0e",
+                              markeredgecolor="black", label="frontier"))  # fmt: skip
+    if landmarks is not None:
+        lxy, lcat = (np.asarray(a) for a in landmarks)
+        ax.scatter(lxy[:, 0], lxy[:, 1], s=30, marker="s", c="#1f77b4", edgecolors="black",
+                   linewidths=0.5, zorder=5)  # fmt: skip
+        for (x, y), c in zip(lxy, lcat, strict=True):
+            name = C.CATEGORY_NAMES[int(c)]
+            ax.text(x, y + 0.35, FURNITURE_LABELS.get(name, name), fontsize=5, ha="center",
+                    color="#1f3f74", zorder=6)  # fmt: skip
+        handles.append(Line2D([], [], linestyle="", marker="s", markerfacecolor="#1f77b4",
+                              markeredgecolor="black", label="landmark of interest"))  # fmt: skip
+    if pose is not None:
+        x, y, th = (float(v) for v in np.asarray(pose))
+        arrow = {"arrowstyle": "->", "color": "#2ca02c", "lw": 1.5}
+        tip = (x + 0.8 * np.cos(th), y + 0.8 * np.sin(th))
+        ax.annotate("", xy=tip, xytext=(x, y), arrowprops=arrow, zorder=7)
+        ax.plot([x], [y], "o", color="#2ca02c", ms=5, zorder=7)
+        handles.append(Line2D([], [], linestyle="", marker="o", color="#2ca02c", label="agent"))
+    handles += [
+        Patch(facecolor="white", edgecolor="grey", label="known free"),
+        Patch(facecolor="black", label="known occupied"),
+        Patch(facecolor=(0.72, 0.72, 0.72), label="unknown"),
+    ]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7,
+              frameon=False)  # fmt: skip
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if title is not None:
+        ax.set_title(title)
+    _save(fig, path)
+    return fig
+
+
+def plot_trajectory(
+    poses,
+    path: str | Path | None = None,
+    ax: plt.Axes | None = None,
+    house: House | None = None,
+    belief=None,
+    preset=None,
+    touring=None,
+    found_xy=None,
+    title: str | None = None,
+) -> plt.Figure:
+    """An executed trajectory over the house (or the final belief map).
+
+    Exploration segments are red, touring (SOP tour execution) segments blue; the start is
+    a circle and the end a cross (SPEC 11).
+
+    Args:
+        poses: [T, 2+] visited positions in order (metres).
+        house: draw the true house underneath (``plot_house``), or
+        belief, preset: draw the final belief map underneath (``plot_belief``).
+        touring: optional [T] bool, true where the agent was executing a tour.
+        found_xy: optional [F, 2] verified target positions (gold stars).
+    """
+    poses = np.asarray(poses)[:, :2]
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(9, 7), dpi=110)
+    else:
+        fig = ax.figure
+    if house is not None:
+        plot_house(house, ax=ax)
+    elif belief is not None and preset is not None:
+        plot_belief(belief, preset, ax=ax)
+    touring = np.zeros(len(poses), bool) if touring is None else np.asarray(touring, bool)
+    for mode, colour in ((False, "#d62728"), (True, "#1f77b4")):
+        seg = np.where(touring[1:] == mode, 1.0, np.nan)[:, None]
+        xs = np.stack([poses[:-1, 0], poses[1:, 0], np.full(len(poses) - 1, np.nan)], axis=1)
+        ys = np.stack([poses[:-1, 1], poses[1:, 1], np.full(len(poses) - 1, np.nan)], axis=1)
+        ax.plot((xs * seg).ravel(), (ys * seg).ravel(), color=colour, lw=1.4, zorder=8)
+    ax.plot(*poses[0], "o", ms=8, mfc="none", mec="black", mew=1.8, zorder=9)
+    ax.plot(*poses[-1], "x", ms=9, color="black", mew=2.0, zorder=9)
+    if found_xy is not None and len(found_xy):
+        f = np.asarray(found_xy)
+        ax.scatter(f[:, 0], f[:, 1], s=90, marker="*", c="gold", edgecolors="black", zorder=10)
     if title is not None:
         ax.set_title(title)
     _save(fig, path)

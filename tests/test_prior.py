@@ -8,7 +8,16 @@ import jax
 import numpy as np
 import pytest
 
-from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS, SPAWN_PROB, category_id
+from bfsop_jax.world.constants import (
+    N_CATEGORIES,
+    N_TARGETS,
+    RECEPTACLE_NAMES,
+    ROOM_FURNITURE,
+    ROOM_TYPE_NAMES,
+    SPAWN_PROB,
+    TARGET_ROOM_WEIGHT,
+    category_id,
+)
 from bfsop_jax.world.prior import default_prior, estimate_prior, load_prior, save_prior
 from bfsop_jax.world.types import House
 
@@ -34,7 +43,7 @@ def test_estimate_counts_targets_on_and_near_landmarks():
         ("Desk", (1, 1), (0.6, 0.3), -1),
         ("Desk", (5, 5), (0.6, 0.3), -1),
         ("Laptop", (1.2, 1.1), (0.1, 0.1), 0),   # on desk 0
-        ("Book", (5.0, 5.6), (0.1, 0.1), -1),    # 0.3 m beside desk 1: near
+        ("Book", (5.0, 5.45), (0.1, 0.1), -1),   # 0.15 m beside desk 1: near
         ("Sofa", (9, 9), (1.0, 0.45), -1),
         ("Book", (3, 3), (0.1, 0.1), -1),        # far from everything
     ])  # fmt: skip
@@ -45,7 +54,7 @@ def test_estimate_counts_targets_on_and_near_landmarks():
     assert prior[desk, category_id("Laptop")] == pytest.approx(0.5)
     assert prior[desk, category_id("Book")] == pytest.approx(0.5)
     assert prior[sofa].sum() == 0
-    assert prior[: N_TARGETS].sum() == 0  # targets are never landmarks
+    assert prior[:N_TARGETS].sum() == 0  # targets are never landmarks
 
 
 def test_save_load_roundtrip_and_errors(tmp_path):
@@ -72,9 +81,13 @@ def test_save_load_roundtrip_and_errors(tmp_path):
 def test_shipped_prior_matches_the_placement_rule():
     prior = default_prior()
     assert prior.shape == (N_CATEGORIES, N_TARGETS)
-    # Every receptacle that can hold a target in the generator has evidence for it.
+    # Every receptacle that can hold a target in a room type allowing it has evidence.
     for r, t in zip(*np.nonzero(SPAWN_PROB > 0.1), strict=True):
-        assert prior[N_TARGETS + r, t] > 0
+        rooms = [
+            k for k, n in enumerate(ROOM_TYPE_NAMES) if RECEPTACLE_NAMES[r] in ROOM_FURNITURE[n]
+        ]
+        if any(TARGET_ROOM_WEIGHT[t, k] >= 1 for k in rooms):
+            assert prior[N_TARGETS + r, t] > 0, (RECEPTACLE_NAMES[r], t)
     # The strongest cue of SoapBottle is the counter top, of Book the desk (ProcTHOR facts).
     assert np.argmax(prior[:, category_id("SoapBottle")]) == category_id("CounterTop")
     assert np.argmax(prior[:, category_id("Book")]) == category_id("Desk")

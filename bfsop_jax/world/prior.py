@@ -36,7 +36,7 @@ DATA_DIR = Path(os.environ.get("BFSOP_DATA", Path(__file__).resolve().parents[2]
 DEFAULT_PRIOR_PATH = DATA_DIR / DEFAULT_PRIOR_FILE
 
 
-def estimate_prior(houses: House, radius_m: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def estimate_prior(houses: House, radius_m: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
     """Estimate P(c | k) from a batch of houses (leading batch axis, NumPy or JAX arrays).
 
     Returns ``(prior [N_CATEGORIES, N_TARGETS] float32, landmark_count [N_CATEGORIES])``.
