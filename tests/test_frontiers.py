@@ -160,3 +160,18 @@ def test_no_retrace_on_new_beliefs():
     i1, _ = explore_target(b1, jnp.array([5.0, 5.0]))
     i2, _ = explore_target(b2, jnp.asarray(agent))
     assert int(i1) == 0 and int(i2) >= 0
+
+
+def test_long_winding_frontier_is_one_cluster():
+    hp, wp = PRESET.plan_shape
+    mask = np.zeros((hp, wp), bool)
+    # a serpentine whose smallest index sits at the far end of the chain
+    for k, r in enumerate(range(4, hp - 4, 4)):
+        mask[r, 4 : wp - 4] = True
+        c = wp - 5 if k % 2 == 0 else 4
+        mask[r : r + 4, c] = True
+    mask[hp - 4 :, :] = False
+    fr = cluster_frontier_cells(jnp.asarray(mask), PRESET)
+    lab, n = ndimage.label(mask, structure=np.ones((3, 3)))
+    assert n == 1
+    assert int(fr.valid.sum()) == 1 and int(fr.size[0]) == mask.sum()

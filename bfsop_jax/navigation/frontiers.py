@@ -83,29 +83,40 @@ def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
 
 def _component_labels(cells: jax.Array) -> jax.Array:
     """8-connected components: [Hp, Wp] bool -> [Hp, Wp] int32 smallest member index
-    (row-major) of each cell's component; ``Hp * Wp`` for non-members."""
+    (row-major) of each cell's component; ``Hp * Wp`` for non-members.
+
+    Label propagation with hooking and pointer jumping: every label is the index of a
+    member of the same component, never above the cell's own index. Each iteration takes
+    the smallest label around each cell, passes it on to the cell its old label points at
+    (so a whole group pointing there follows at once), then jumps pointers twice. This
+    takes a few iterations even for long winding frontiers, where plain propagation would
+    need one iteration per cell of the chain.
+    """
     hp, wp = cells.shape
-    big = hp * wp
-    label0 = jnp.where(cells, jnp.arange(big, dtype=jnp.int32).reshape(hp, wp), big)
+    n = hp * wp
+    member = cells.reshape(-1)
+    label0 = jnp.where(member, jnp.arange(n, dtype=jnp.int32), n)
 
     def neighbour_min(lab):
-        p = jnp.pad(lab, 1, constant_values=big)
-        out = lab
+        g = jnp.pad(lab.reshape(hp, wp), 1, constant_values=n)
+        out = lab.reshape(hp, wp)
         for di in (0, 1, 2):
             for dj in (0, 1, 2):
-                out = jnp.minimum(out, p[di : di + hp, dj : dj + wp])
-        return jnp.where(cells, out, big)
+                out = jnp.minimum(out, g[di : di + hp, dj : dj + wp])
+        return jnp.where(member, out.reshape(-1), n)
 
     def body(state):
         lab, _ = state
-        new = neighbour_min(lab)
-        # pointer jumping: a label is a member of the same component with a smaller index
-        flat = jnp.concatenate([new.reshape(-1), jnp.array([big], jnp.int32)])
-        new = flat[new]
+        low = neighbour_min(lab)
+        ext = jnp.concatenate([low, jnp.array([n], jnp.int32)])  # slot n: non-members
+        ext = ext.at[lab].min(low)  # hook: the old label's cell takes the new label too
+        for _ in range(2):
+            ext = ext[ext]
+        new = ext[:n]
         return new, jnp.any(new != lab)
 
     lab, _ = lax.while_loop(lambda s: s[1], body, (label0, jnp.bool_(True)))
-    return lab
+    return lab.reshape(hp, wp)
 
 
 def cluster_frontier_cells(
@@ -120,24 +131,25 @@ def cluster_frontier_cells(
     member = lab < n
     seg = jnp.where(member, lab, n)  # non-members go to a dump segment
     ii, jj = jnp.divmod(jnp.arange(n, dtype=jnp.int32), wp)
-    size = jax.ops.segment_sum(member.astype(jnp.int32), seg, num_segments=n + 1)[:n]
-    sum_i = jax.ops.segment_sum(jnp.where(member, ii, 0).astype(jnp.float32), seg, n + 1)
-    sum_j = jax.ops.segment_sum(jnp.where(member, jj, 0).astype(jnp.float32), seg, n + 1)
-    cnt = jnp.maximum(size, 1).astype(jnp.float32)
-    ci, cj = sum_i[:n] / cnt, sum_j[:n] / cnt
-    # member nearest to its cluster's centroid (ties: lowest index)
-    lab_c = jnp.minimum(lab, n - 1)
-    d2 = jnp.where(member, (ii - ci[lab_c]) ** 2 + (jj - cj[lab_c]) ** 2, jnp.inf)
-    best = jax.ops.segment_min(d2, seg, num_segments=n + 1)[:n]
-    is_best = member & (d2 <= best[lab_c])
-    rep = jax.ops.segment_min(
-        jnp.where(is_best, jnp.arange(n, dtype=jnp.int32), n), seg, num_segments=n + 1
-    )[:n]
+    # one scatter for size and coordinate sums of every component (indexed by its root)
+    stats = jnp.stack([jnp.ones(n), ii, jj], -1) * member[:, None]
+    stats = jax.ops.segment_sum(stats.astype(jnp.float32), seg, num_segments=n + 1)[:n]
+    size = stats[:, 0].astype(jnp.int32)
     root = member & (lab == jnp.arange(n))
-    key = jnp.where(root & (size >= min_size), size, -1)
-    top_size, top_root = lax.top_k(key, f_max)
+    # float keys: XLA:CPU's integer top_k falls back to a full sort (30x slower)
+    key = jnp.where(root & (size >= min_size), size, -1).astype(jnp.float32)
+    top_key, top_root = lax.top_k(key, f_max)
+    top_size = top_key.astype(jnp.int32)
     valid = top_size >= min_size
-    rep_cell = jnp.stack(jnp.divmod(rep[top_root], wp), axis=-1)
+    # representative: the member nearest to its cluster's centroid (ties: lowest index)
+    lab_c = jnp.minimum(lab, n - 1)
+    centroid = stats[lab_c, 1:] / jnp.maximum(stats[lab_c, :1], 1.0)
+    d2 = jnp.where(member, (ii - centroid[:, 0]) ** 2 + (jj - centroid[:, 1]) ** 2, jnp.inf)
+    best = jax.ops.segment_min(d2, seg, num_segments=n + 1)[:n]
+    index = jnp.arange(n, dtype=jnp.int32)
+    first = jnp.where(member & (d2 <= best[lab_c]), index, n)
+    rep = jax.ops.segment_min(first, seg, num_segments=n + 1)[top_root]
+    rep_cell = jnp.stack(jnp.divmod(rep, wp), axis=-1)
     xy = jnp.where(valid[:, None], plan_cell_to_xy(rep_cell, preset), 0.0)
     return Frontiers(xy=xy, size=jnp.where(valid, top_size, 0).astype(jnp.int32), valid=valid)
 
