@@ -41,6 +41,7 @@ node slots of sets ``s`` and ``t`` (inf for padding slots).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 
 import numpy as np
@@ -75,6 +76,17 @@ class SetView:
     @property
     def num_sets(self) -> int:
         return int(self.set_ids.shape[0])
+
+    @property
+    def block_flat(self) -> np.ndarray:
+        """[Q * Q, (M + 2) * (M + 2)] view of ``block`` for flat gathers."""
+        q, k = self.block.shape[0], self.block.shape[2]
+        return self.block.reshape(q * q, k * k)
+
+    @property
+    def block_flat_t(self) -> np.ndarray:
+        q, k = self.block.shape[0], self.block.shape[2]
+        return self.block_t.reshape(q * q, k * k)
 
     @property
     def start_set(self) -> int:
@@ -190,14 +202,17 @@ def _point(q: int) -> np.ndarray:
     return v
 
 
+_lowest = functools.partial(np.minimum.reduce, axis=0)  # min over the leading (slot) axis
+
+
 def _fwd_step(vec: np.ndarray, mat: np.ndarray) -> np.ndarray:
     """min_a vec[a, ...] + mat[a, b, ...] -> [Q, ...]."""
-    return (vec[:, None] + mat).min(axis=0)
+    return _lowest(vec[:, None] + mat)
 
 
 def _bwd_step(mat_t: np.ndarray, vec: np.ndarray) -> np.ndarray:
     """min_b mat_t[b, a, ...] + vec[b, ...] -> [Q, ...]."""
-    return (mat_t + vec[:, None]).min(axis=0)
+    return _lowest(mat_t + vec[:, None])
 
 
 def _blocks(view: SetView, src: np.ndarray, dst: np.ndarray, swapped: bool = False) -> np.ndarray:
@@ -206,20 +221,19 @@ def _blocks(view: SetView, src: np.ndarray, dst: np.ndarray, swapped: bool = Fal
     A flat ``np.take`` keeps the result C-contiguous with the slot axes first (fancy
     indexing would leave the slot axes innermost in memory and make the reductions slow).
     """
-    src, dst = np.broadcast_arrays(src, dst)
-    q, k = view.block.shape[0], view.block.shape[2]
-    table = (view.block_t if swapped else view.block).reshape(q * q, k * k)
-    return np.take(table, (src * k + dst).ravel(), axis=1).reshape(q, q, *src.shape)
+    flat = np.asarray(src * view.block.shape[2] + dst)
+    table = view.block_flat_t if swapped else view.block_flat
+    q = view.block.shape[0]
+    return table.take(flat.ravel(), axis=1).reshape(q, q, *flat.shape)
 
 
 def _take(table: np.ndarray, *index: np.ndarray) -> np.ndarray:
     """table[:, *index] for a table [Q, *dims], as a C-contiguous [Q, *shape] array."""
-    index = np.broadcast_arrays(*index)
-    flat = np.zeros(index[0].shape, np.int64)
-    for size, idx in zip(table.shape[1:], index, strict=True):
+    flat = index[0]
+    for size, idx in zip(table.shape[2:], index[1:], strict=True):
         flat = flat * size + idx
     q = table.shape[0]
-    return np.take(table.reshape(q, -1), flat.ravel(), axis=1).reshape(q, *flat.shape)
+    return table.reshape(q, -1).take(flat.ravel(), axis=1).reshape(q, *flat.shape)
 
 
 def _sequences(view: SetView, perm: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -258,10 +272,11 @@ def _tables(view: SetView, perm: np.ndarray, m: np.ndarray) -> _Tables:
         fwd[layer] = _fwd_step(fwd[layer - 1], step[:, :, layer - 1])
     bwd = np.empty((length, q, w))
     bwd[-1] = point
+    short = m + 1 < length - 1  # tours that end before the last layer
     for layer in range(length - 2, -1, -1):
         bwd[layer] = _bwd_step(step_t[:, :, layer], bwd[layer + 1])
-        ends = np.flatnonzero(m + 1 == layer)
-        if ends.size:
+        if short.any():
+            ends = m + 1 == layer
             bwd[layer][:, ends] = point[:, ends]
     total = fwd[m + 1, 0, np.arange(w)]
     return _Tables(
@@ -284,9 +299,9 @@ def _gap_tables(view: SetView, t: _Tables) -> tuple[np.ndarray, np.ndarray]:
     """
     sets = np.arange(view.num_sets)[None, None, :]
     blk = _blocks(view, t.seq[:, :-1, None], sets)  # [Q, Q, W, L-1, M]
-    into = (t.fwd[:, None, :, :-1, None] + blk).min(axis=0)
+    into = _lowest(t.fwd[:, None, :, :-1, None] + blk)
     blk = _blocks(view, sets, t.seq[:, 1:, None], swapped=True)
-    out_of = (blk + t.bwd[:, None, :, 1:, None]).min(axis=0)
+    out_of = _lowest(blk + t.bwd[:, None, :, 1:, None])
     return into, out_of
 
 
@@ -366,7 +381,7 @@ def _neighbourhood(
     moves: list[_Moves] = []
     if which == 1:
         # insertion of an unvisited set s into gap j: [W, j, s]
-        cost = (into + out_of).min(axis=0)
+        cost = _lowest(into + out_of)
         valid = (layer[None, :-1, None] <= mm) & unvisited[:, None, :]
         gain = np.broadcast_to(reward[None, None, : view.num_sets], cost.shape)
         moves.append(_Moves("insert", cost, gain, valid))
@@ -377,18 +392,18 @@ def _neighbourhood(
         s_i = np.minimum(s_raw, clip)
         # earlier (j <= i - 2): ..., j, s_i, j+1, ..., i-1, i+1, ...
         blk = _blocks(view, s_raw, seq[:, None, 1:], swapped=True)  # s_i -> layer j+1
-        after = (blk + bwd_skip[:, None, :, :, 1:]).min(axis=0)
-        earlier = (_take(into, rows, gaps, s_i) + after).min(axis=0)
+        after = _lowest(blk + bwd_skip[:, None, :, :, 1:])
+        earlier = _lowest(_take(into, rows, gaps, s_i) + after)
         # later (j >= i + 1): ..., i-1, i+1, ..., j, s_i, j+1, ...
         blk = _blocks(view, seq[:, None, :-1], s_raw)  # layer j -> s_i
-        before = (fwd_skip[:, None, :, :, :-1] + blk).min(axis=0)
-        later = (before + _take(out_of, rows, gaps, s_i)).min(axis=0)
+        before = _lowest(fwd_skip[:, None, :, :, :-1] + blk)
+        later = _lowest(before + _take(out_of, rows, gaps, s_i))
         cost = np.where(gaps <= li - 2, earlier, later)
         valid = (li >= 1) & (li <= mm) & ((gaps <= li - 2) | ((gaps >= li + 1) & (gaps <= mm)))
         moves.append(_Moves("relocate", cost, np.zeros_like(cost), valid))
     else:
         # replacement of visited layer i by an unvisited set s: [W, i - 1, s]
-        cost = (into[:, :, :-1] + out_of[:, :, 1:]).min(axis=0)
+        cost = _lowest(into[:, :, :-1] + out_of[:, :, 1:])
         valid = (layer[None, 1:-1, None] <= mm) & unvisited[:, None, :]
         lost = reward[np.minimum(seq[:, 1:-1], clip)][..., None]
         gain = reward[None, None, : view.num_sets] - lost
@@ -414,7 +429,7 @@ def _swap_moves(view: SetView, t: _Tables, into: np.ndarray, out_of: np.ndarray)
         left = _take(into, r, i - 1, np.minimum(seq[:, i[0] + 1], clip))  # [Q, W, L-3]
         right = _take(out_of, r, i + 1, np.minimum(seq[:, i[0]], clip))
         mid = _blocks(view, seq[:, i[0] + 1], seq[:, i[0]])  # [Q, Q, W, L-3]
-        cost[:, i[0], i[0] + 1] = (_fwd_step(left, mid) + right).min(axis=0)
+        cost[:, i[0], i[0] + 1] = _lowest(_fwd_step(left, mid) + right)
     if length >= 5:
         # k >= i + 2: ..., i-1, s_k, i+1, ..., k-1, s_i, k+1, ...; the middle is unchanged,
         # so one table per pair is carried through it layer by layer
@@ -430,7 +445,7 @@ def _swap_moves(view: SetView, t: _Tables, into: np.ndarray, out_of: np.ndarray)
             )
         prev = seq[:, np.clip(layer - 1, 0, length - 1)][:, None, :]  # set at layer k-1
         tail = _fwd_step(vec, _blocks(view, prev, seq[:, :, None]))  # s_i in layer k
-        far = (tail + _take(out_of, rows, np.clip(lk, 0, length - 2), s_i)).min(axis=0)
+        far = _lowest(tail + _take(out_of, rows, np.clip(lk, 0, length - 2), s_i))
         cost = np.where(lk >= li + 2, far, cost)
     return _Moves("swap", cost, np.zeros_like(cost), valid)
 
@@ -467,12 +482,13 @@ def _prefix_costs(view: SetView, perm: np.ndarray) -> np.ndarray:
     q = view.members.shape[1]
     fwd = np.repeat(_point(q)[:, None], w, axis=1)  # [Q, W]
     out = np.empty((w, msets + 1))
-    prev = np.full(w, view.start_set)
-    out[:, 0] = _fwd_step(fwd, _blocks(view, prev, view.end_set))[0]
+    layers = np.concatenate([np.full((w, 1), view.start_set), perm], axis=1).T  # [M+1, W]
+    steps = _blocks(view, layers[:-1], layers[1:])  # [Q, Q, M, W]
+    close = _blocks(view, layers, view.end_set)[:, 0]  # [Q, M+1, W]: slot -> end
+    out[:, 0] = _lowest(fwd + close[:, 0])
     for p in range(msets):
-        fwd = _fwd_step(fwd, _blocks(view, prev, perm[:, p]))
-        prev = perm[:, p]
-        out[:, p + 1] = _fwd_step(fwd, _blocks(view, prev, view.end_set))[0]
+        fwd = _fwd_step(fwd, steps[:, :, p])
+        out[:, p + 1] = _lowest(fwd + close[:, p + 1])
     return out
 
 
@@ -544,22 +560,36 @@ def _local_search(
     m: np.ndarray,
     which: int,
     rng: np.random.Generator,
+    trades: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Random first-improvement local search ``which`` on a batch, n^2 trials each."""
+    """Random first-improvement local search ``which`` on a batch, n^2 trials each.
+
+    With ``trades``, as in the published code, a replacement is also taken when it
+    shortens the tour while lowering the reward; the set it removes may not come back
+    during the same search, which rules out trade / re-insert cycles.
+    """
     w = perm.shape[0]
     trials_left = np.full(w, float(view.num_sets) ** 2)
     active = np.ones(w, bool)
+    banned = np.zeros((w, view.num_sets), bool)
     eps_r, eps_l = _tolerances(view)
     perm, m = perm.copy(), m.copy()
     while active.any():
         idx = np.flatnonzero(active)
         t = _tables(view, perm[idx], m[idx])
         moves = _neighbourhood(view, perm[idx], m[idx], t, which)
+        for mv in moves:
+            if mv.kind in ("insert", "replace"):
+                mv.valid = mv.valid & ~banned[idx, None, :]
         cost = np.concatenate([mv.cost.reshape(len(idx), -1) for mv in moves], axis=1)
         gain = np.concatenate([mv.gain.reshape(len(idx), -1) for mv in moves], axis=1)
         valid = np.concatenate([mv.valid.reshape(len(idx), -1) for mv in moves], axis=1)
+        trade = np.concatenate(
+            [np.full(mv.cost[0].size, trades and mv.kind == "replace") for mv in moves]
+        )
+        shorter = cost < t.length[:, None] - eps_l
         better = valid & (cost <= view.budget)
-        better &= (gain > eps_r) | ((np.abs(gain) <= eps_r) & (cost < t.length[:, None] - eps_l))
+        better &= (gain > eps_r) | (((np.abs(gain) <= eps_r) | trade[None, :]) & shorter)
         n_valid = valid.sum(axis=1)
         n_better = better.sum(axis=1)
         keys = np.where(better, rng.random(better.shape), -1.0)
@@ -575,6 +605,8 @@ def _local_search(
             k = int(np.searchsorted(sizes, pick[r], side="right") - 1)
             mv = moves[k]
             a, b = np.unravel_index(pick[r] - sizes[k], mv.cost.shape[1:])
+            if mv.kind == "replace" and gain[r, pick[r]] < -eps_r:
+                banned[wi, perm[wi][a]] = True
             perm[wi], m[wi] = _apply(perm[wi], int(m[wi]), mv.kind, int(a), int(b))
     return perm, m
 
@@ -598,7 +630,7 @@ def greedy_solution(view: SetView) -> tuple[np.ndarray, int]:
     while m < msets:
         t = _tables(view, perm[None], np.array([m]))
         into, out_of = _gap_tables(view, t)
-        cost = (into + out_of).min(axis=0)[0]  # [L-1, M]
+        cost = _lowest(into + out_of)[0]  # [L-1, M]
         unvisited = ~_visited_mask(view, perm[None], np.array([m]))[0]
         ok = (cost <= view.budget) & unvisited[None, :]
         ok[m + 1 :] = False
@@ -647,6 +679,7 @@ def solve_vns(
     max_no_improve: int = 1000,
     time_limit: float | None = None,
     width: int | None = None,
+    trades: bool = False,
     return_greedy: bool = False,
 ) -> Solution | tuple[Solution, Solution]:
     """Solve one SOP instance with the VNS teacher (NumPy).
@@ -658,6 +691,8 @@ def solve_vns(
         max_no_improve: stop after this many iterations without improvement (1000).
         time_limit: optional wall-clock limit in seconds (checked between batches).
         width: iterations evaluated side by side (default: from the instance size).
+        trades: let local search 2 replace a set by a cheaper, lower-reward one when that
+            shortens the tour (the published code's rule; slower, see docs/sop.md).
         return_greedy: also return the greedy initial solution.
 
     Returns:
@@ -674,7 +709,7 @@ def solve_vns(
     greedy = _solution(inst, _plan(view, perm, m))
     q = view.members.shape[1]
     if width is None:
-        width = int(np.clip(6000 // (view.num_sets * q * q + 1), 1, 16))
+        width = int(np.clip(24000 // (view.num_sets * q * q), 1, 48))
     best_r, best_c = (float(x[0]) for x in _score(view, perm[None], np.array([m])))
     t0 = time.perf_counter()
     it, last = 0, 0
@@ -688,7 +723,7 @@ def solve_vns(
             for i in range(width):
                 batch[i], ms[i] = _shake(perm, m, k, rng)
             ms = _fit(view, batch, ms)
-            batch, ms = _local_search(view, batch, ms, k, rng)
+            batch, ms = _local_search(view, batch, ms, k, rng, trades)
             rew, cost = _score(view, batch, ms)
             order = np.lexsort((cost, -rew))
             j = int(order[0])
