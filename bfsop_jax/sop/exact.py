@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bfsop_jax.sop.types import SOPInstance, Solution, evaluate
+from bfsop_jax.sop.types import Solution, SOPInstance, evaluate
 from bfsop_jax.sop.vns import empty_solution, set_view, solve_vns
 
 __all__ = ["solve_exact"]

@@ -142,9 +142,7 @@ class Solution:
             raise ValueError(f"plan of {len(nodes)} nodes does not fit length {length}")
         out = np.full(length, -1, np.int32)
         out[: len(nodes)] = nodes
-        return Solution(
-            nodes=out, reward=np.float32(self.reward), cost=np.float32(self.cost)
-        )
+        return Solution(nodes=out, reward=np.float32(self.reward), cost=np.float32(self.cost))
 
     def __getitem__(self, index: Any) -> Solution:
         return jax.tree_util.tree_map(lambda x: x[index], self)

@@ -46,7 +46,7 @@ import time
 
 import numpy as np
 
-from bfsop_jax.sop.types import SOPInstance, Solution, evaluate, validate
+from bfsop_jax.sop.types import Solution, SOPInstance, evaluate, validate
 
 __all__ = ["SetView", "set_view", "solve_vns", "greedy_solution", "empty_solution"]
 
