@@ -1,0 +1,24 @@
+"""Set Orienteering Problem: instances, ``.sop`` files, the VNS teacher, the exact solver,
+the bounded 2-opt with the budget gate, and the batched host callback (SPEC 8)."""
+
+from bfsop_jax.sop.callback import solve_vns_batch, vns_callback
+from bfsop_jax.sop.exact import solve_exact
+from bfsop_jax.sop.io import read_sop
+from bfsop_jax.sop.two_opt import budget_gate, two_opt
+from bfsop_jax.sop.types import Solution, SOPInstance, evaluate, plan_length, validate
+from bfsop_jax.sop.vns import solve_vns
+
+__all__ = [
+    "SOPInstance",
+    "Solution",
+    "budget_gate",
+    "evaluate",
+    "plan_length",
+    "read_sop",
+    "solve_exact",
+    "solve_vns",
+    "solve_vns_batch",
+    "two_opt",
+    "validate",
+    "vns_callback",
+]

@@ -1,0 +1,131 @@
+"""The VNS teacher on batches: a process pool on the host, and a JAX host callback.
+
+``solve_vns_batch`` labels a batch of NumPy instances on all CPU cores; ``vns_callback``
+calls it from jitted JAX code through ``jax.pure_callback``. JAX runs its own threads,
+so worker processes are started with the ``spawn`` method (never ``fork`` after JAX has
+started) and the pool is created once and reused across calls. A batch of one is solved
+in the calling process.
+"""
+
+from __future__ import annotations
+
+import atexit
+import concurrent.futures
+import dataclasses
+import functools
+import multiprocessing
+import os
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
+from bfsop_jax.sop.vns import solve_vns
+
+__all__ = ["solve_vns_batch", "vns_callback", "shutdown_pool"]
+
+_FIELDS = dataclasses.fields(SOPInstance)
+_POOL: concurrent.futures.ProcessPoolExecutor | None = None
+_POOL_SIZE = 0
+
+
+def _pool(processes: int) -> concurrent.futures.ProcessPoolExecutor:
+    global _POOL, _POOL_SIZE
+    if _POOL is None or _POOL_SIZE != processes:
+        shutdown_pool()
+        ctx = multiprocessing.get_context("spawn")
+        _POOL = concurrent.futures.ProcessPoolExecutor(max_workers=processes, mp_context=ctx)
+        _POOL_SIZE = processes
+    return _POOL
+
+
+def shutdown_pool() -> None:
+    """Stop the worker processes (they are restarted on the next batch)."""
+    global _POOL, _POOL_SIZE
+    if _POOL is not None:
+        _POOL.shutdown(wait=True, cancel_futures=True)
+    _POOL, _POOL_SIZE = None, 0
+
+
+atexit.register(shutdown_pool)
+
+
+def _solve_packed(item: tuple[dict[str, np.ndarray], int, int, dict[str, Any]]):
+    """Worker entry point: solve one instance, return padded (nodes, reward, cost)."""
+    fields, seed, length, kwargs = item
+    sol = solve_vns(SOPInstance(**fields), seed=seed, **kwargs)
+    padded = sol.padded(length)
+    return padded.nodes, padded.reward, padded.cost
+
+
+def solve_vns_batch(
+    instances: SOPInstance,
+    seeds: Any,
+    processes: int | None = None,
+    **vns_kwargs: Any,
+) -> Solution:
+    """Solve a batch of instances with :func:`solve_vns`, one process per CPU core.
+
+    Args:
+        instances: batched instance, every leaf with a leading batch axis B (NumPy or JAX).
+        seeds: [B] integer seeds, one per instance.
+        processes: worker processes (default: number of CPU cores, at most B).
+        **vns_kwargs: passed to :func:`solve_vns` (``max_iters``, ``time_limit``, ...).
+
+    Returns:
+        Batched NumPy :class:`Solution`: ``nodes`` [B, K + 1] int32 padded with -1,
+        ``reward`` [B] and ``cost`` [B] float32. Equal to ``solve_vns`` per instance.
+    """
+    inst = instances.to_numpy()
+    if inst.set_id.ndim != 2:
+        raise ValueError(f"expected a batch of instances, set_id has shape {inst.set_id.shape}")
+    batch = inst.set_id.shape[0]
+    seeds = np.broadcast_to(np.asarray(seeds, np.int64).reshape(-1), (batch,))
+    length = plan_length(inst.num_sets)
+    items = [
+        ({f.name: getattr(inst, f.name)[b] for f in _FIELDS}, int(seeds[b]), length, vns_kwargs)
+        for b in range(batch)
+    ]
+    workers = min(processes or os.cpu_count() or 1, batch)
+    if workers <= 1:
+        results = [_solve_packed(item) for item in items]
+    else:
+        chunk = max(1, batch // (4 * workers))
+        results = list(_pool(workers).map(_solve_packed, items, chunksize=chunk))
+    nodes, reward, cost = zip(*results, strict=True)
+    return Solution(
+        nodes=np.stack(nodes).astype(np.int32),
+        reward=np.asarray(reward, np.float32),
+        cost=np.asarray(cost, np.float32),
+    )
+
+
+def vns_callback(instances: SOPInstance, seeds: jax.Array, **vns_kwargs: Any) -> Solution:
+    """Label a batch from (jitted) JAX code: ``jax.pure_callback`` to :func:`solve_vns_batch`.
+
+    Args:
+        instances: batched instance, leading batch axis B (JAX arrays, may be traced).
+        seeds: [B] integer seeds.
+        **vns_kwargs: static options for :func:`solve_vns`.
+
+    Returns:
+        Batched :class:`Solution` of JAX arrays: ``nodes`` [B, K + 1] int32 (-1 padded),
+        ``reward`` and ``cost`` [B] float32.
+    """
+    batch = instances.set_id.shape[0]
+    length = plan_length(instances.set_reward.shape[-1])
+    shapes = Solution(
+        nodes=jax.ShapeDtypeStruct((batch, length), jnp.int32),
+        reward=jax.ShapeDtypeStruct((batch,), jnp.float32),
+        cost=jax.ShapeDtypeStruct((batch,), jnp.float32),
+    )
+    host = functools.partial(_host_solve, **vns_kwargs)
+    return jax.pure_callback(
+        host, shapes, instances, jnp.asarray(seeds, jnp.int32), vmap_method="sequential"
+    )
+
+
+def _host_solve(instances: SOPInstance, seeds: np.ndarray, **vns_kwargs: Any) -> Solution:
+    return solve_vns_batch(instances, np.asarray(seeds), **vns_kwargs)

@@ -1,0 +1,223 @@
+"""Bounded SOP 2-opt and the budget gate (JAX, SPEC 8.5).
+
+``two_opt`` improves a plan without changing which sets it visits:
+
+1. intra-set exchange: for the current set order, a layered min-plus DP over the padded
+   ``[N, N]`` cost matrix picks the best node of every visited set exactly;
+2. inter-set reordering: every segment reversal (2-opt) of the visited set order is
+   scored with the current nodes in O(1) from prefix sums of the forward and backward
+   edge costs; the best improving one is applied and step 1 runs again.
+
+It stops after ``max_iters`` reversals or when none improves (``lax.while_loop``); a step
+is kept only if it lowers the cost, so the cost never increases and the visited sets,
+hence the reward, stay the same. ``budget_gate`` then drops sets from the end of the plan
+until its cost fits the budget (that one may lower the reward).
+
+Both functions take a single instance and solution, or a batch (leading batch axis on
+every leaf, ``jax.vmap`` inside); both are jitted. Shapes are static: N nodes, T =
+``solution.nodes.shape[-1]`` plan slots (padded with -1). Internally a route holds T + 1
+positions: the start, the visited nodes, then the end node, or a virtual node N whose
+incoming edges cost 0 for an open path; later positions repeat that virtual node.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from bfsop_jax.sop.types import Solution, SOPInstance
+
+__all__ = ["two_opt", "budget_gate"]
+
+
+def _batched(fn):
+    """Apply ``fn(instance, solution, ...)`` to one item or vmap it over a leading axis."""
+
+    @functools.wraps(fn)
+    def wrapper(instance: SOPInstance, solution: Solution, *args):
+        if instance.cost.ndim == 3:
+            return jax.vmap(lambda i, s: fn(i, s, *args))(instance, solution)
+        return fn(instance, solution, *args)
+
+    return wrapper
+
+
+def _extended_cost(instance: SOPInstance) -> jax.Array:
+    """[N+1, N+1] float32 costs with a virtual node N: free to enter, free to stay."""
+    n = instance.cost.shape[-1]
+    ext = jnp.full((n + 1, n + 1), jnp.inf, jnp.float32)
+    ext = ext.at[:n, :n].set(instance.cost.astype(jnp.float32))
+    return ext.at[:, n].set(0.0)
+
+
+def _route(instance: SOPInstance, nodes: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Route [T+1] (start, visited, end or virtual) and the visited count m."""
+    t = nodes.shape[0]
+    n = instance.cost.shape[-1]
+    has_end = instance.end >= 0
+    count = jnp.sum(nodes >= 0)
+    m = jnp.maximum(count - 1 - has_end.astype(count.dtype), 0)
+    pos = jnp.arange(t + 1)
+    padded = jnp.concatenate([nodes, jnp.full((1,), -1, nodes.dtype)])
+    last = jnp.where(has_end, instance.end, n)
+    route = jnp.where(pos <= m, padded, jnp.where(pos == m + 1, last, n))
+    route = route.at[0].set(instance.start)
+    return route.astype(jnp.int32), m
+
+
+def _route_cost(cx: jax.Array, route: jax.Array) -> jax.Array:
+    return jnp.sum(cx[route[:-1], route[1:]])
+
+
+def _to_solution(instance: SOPInstance, cx: jax.Array, route: jax.Array, m: jax.Array) -> Solution:
+    """Pack a route into a padded Solution (nodes [T])."""
+    t = route.shape[0] - 1
+    n = instance.cost.shape[-1]
+    pos = jnp.arange(t)
+    keep = (pos <= m) | ((pos == m + 1) & (route[:t] < n))
+    nodes = jnp.where(keep, route[:t], -1).astype(jnp.int32)
+    visited = (pos >= 1) & (pos <= m)
+    sets = instance.set_id[jnp.clip(route[:t], 0, n - 1)]
+    reward = jnp.sum(jnp.where(visited, instance.set_reward[jnp.clip(sets, 0)], 0.0))
+    return Solution(nodes=nodes, reward=reward.astype(jnp.float32), cost=_route_cost(cx, route))
+
+
+def _best_nodes(instance: SOPInstance, cx: jax.Array, route: jax.Array, m: jax.Array) -> jax.Array:
+    """Same set order, best node of every visited set (layered min-plus DP + backtrack)."""
+    t1 = route.shape[0]
+    n = instance.cost.shape[-1]
+    cost = cx[:n, :n]
+    order = instance.set_id[jnp.clip(route, 0, n - 1)]  # set of each route position
+    close = cx[:n, route[jnp.clip(m + 1, 0, t1 - 1)]]  # [N] cost to the end (0 if open)
+    table0 = jnp.where(jnp.arange(n) == instance.start, 0.0, jnp.inf)
+
+    def layer(table, pos):
+        cand = table[:, None] + cost  # [from, to]
+        best = jnp.min(cand, axis=0)
+        back = jnp.argmin(cand, axis=0).astype(jnp.int32)
+        allowed = instance.set_id == order[pos]
+        active = pos <= m
+        new = jnp.where(allowed, best, jnp.inf)
+        stay = jnp.arange(n, dtype=jnp.int32)  # layers past the plan keep every node
+        return jnp.where(active, new, table), jnp.where(active, back, stay)
+
+    table, back = jax.lax.scan(layer, table0, jnp.arange(1, t1))
+    last = jnp.argmin(table + close).astype(jnp.int32)
+
+    def trace(node, ptr):
+        return ptr[node], node
+
+    _, chosen = jax.lax.scan(trace, last, back, reverse=True)  # chosen[l-1]: node of layer l
+    pos = jnp.arange(t1)
+    inner = (pos >= 1) & (pos <= m)
+    return jnp.where(inner, jnp.concatenate([route[:1], chosen])[pos], route)
+
+
+def _reversal_costs(cx: jax.Array, route: jax.Array, m: jax.Array) -> jax.Array:
+    """[T+1, T+1] cost after reversing route[i..k] (1 <= i < k <= m), inf elsewhere."""
+    t1 = route.shape[0]
+    fwd = cx[route[:-1], route[1:]]  # edge p -> p+1
+    bwd = cx[route[1:], route[:-1]]  # edge p+1 -> p
+
+    def prefix(e):  # cumulative finite sums and inf counts, so segment sums never see inf-inf
+        z = jnp.zeros((1,), e.dtype)
+        finite = jnp.concatenate([z, jnp.cumsum(jnp.where(jnp.isinf(e), 0.0, e))])
+        infs = jnp.concatenate([z, jnp.cumsum(jnp.isinf(e).astype(e.dtype))])
+        return finite, infs
+
+    f_sum, f_inf = prefix(fwd)
+    b_sum, b_inf = prefix(bwd)
+    i = jnp.arange(t1)[:, None]
+    k = jnp.arange(t1)[None, :]
+    im1 = jnp.clip(i - 1, 0, t1 - 1)
+    kp1 = jnp.clip(k + 1, 0, t1 - 1)
+    kk = jnp.clip(k, 0, t1 - 1)
+    # before: edges 0..i-2; middle reversed: edges i..k-1 backwards; after: edges k+1..T-1
+    finite = f_sum[im1] + (b_sum[kk] - b_sum[i]) + (f_sum[t1 - 1] - f_sum[kp1])
+    infs = f_inf[im1] + (b_inf[kk] - b_inf[i]) + (f_inf[t1 - 1] - f_inf[kp1])
+    links = cx[route[im1], route[kk]] + cx[route[i], route[kp1]]
+    total = jnp.where(infs > 0, jnp.inf, finite + links)
+    valid = (i >= 1) & (k > i) & (k <= m)
+    return jnp.where(valid, total, jnp.inf)
+
+
+def _two_opt_single(instance: SOPInstance, solution: Solution, max_iters: int) -> Solution:
+    cx = _extended_cost(instance)
+    route, m = _route(instance, solution.nodes)
+    t1 = route.shape[0]
+    cost0 = _route_cost(cx, route)
+    # intra-set exchange on the given order first
+    first = _best_nodes(instance, cx, route, m)
+    cost1 = _route_cost(cx, first)
+    route, cost = jax.lax.cond(cost1 < cost0, lambda: (first, cost1), lambda: (route, cost0))
+
+    def cond(state):
+        _, _, it, done = state
+        return (it < max_iters) & ~done
+
+    def body(state):
+        route, cost, it, _ = state
+        scores = _reversal_costs(cx, route, m)
+        flat = jnp.argmin(scores)
+        i, k = flat // t1, flat % t1
+        tol = 1e-6 * jnp.maximum(1.0, jnp.abs(cost))
+        pos = jnp.arange(t1)
+        inside = (pos >= i) & (pos <= k)
+        flipped = jnp.where(inside, route[jnp.clip(i + k - pos, 0, t1 - 1)], route)
+        better = _best_nodes(instance, cx, flipped, m)
+        new_cost = _route_cost(cx, better)
+        take = (scores.reshape(-1)[flat] < cost - tol) & (new_cost < cost)
+        return (
+            jnp.where(take, better, route),
+            jnp.where(take, new_cost, cost),
+            it + 1,
+            ~take,
+        )
+
+    route, _, _, _ = jax.lax.while_loop(cond, body, (route, cost, jnp.int32(0), jnp.bool_(False)))
+    return _to_solution(instance, cx, route, m)
+
+
+def _budget_gate_single(instance: SOPInstance, solution: Solution) -> Solution:
+    cx = _extended_cost(instance)
+    route, m = _route(instance, solution.nodes)
+    t1 = route.shape[0]
+    n = instance.cost.shape[-1]
+    end = jnp.where(instance.end >= 0, instance.end, n)
+    edges = cx[route[:-1], route[1:]]
+    prefix = jnp.concatenate([jnp.zeros((1,), edges.dtype), jnp.cumsum(edges)])  # cost to p
+    total = prefix + cx[route, end]  # plan keeping positions 0..p, then the end
+    pos = jnp.arange(t1)
+    fits = (pos <= m) & (total <= instance.budget)
+    keep = jnp.max(jnp.where(fits, pos, 0))
+    cut = jnp.where(pos <= keep, route, jnp.where(pos == keep + 1, end, n)).astype(jnp.int32)
+    return _to_solution(instance, cx, cut, keep)
+
+
+@functools.partial(jax.jit, static_argnames=("max_iters",))
+def two_opt(instance: SOPInstance, solution: Solution, max_iters: int = 100) -> Solution:
+    """Bounded SOP 2-opt with exact intra-set node choice; never increases the cost.
+
+    Args:
+        instance: one instance, or a batch with a leading batch axis on every leaf.
+        solution: matching plan(s), ``nodes`` [T] or [B, T] padded with -1.
+        max_iters: most segment reversals applied (static).
+
+    Returns:
+        Solution(s) with the same visited sets (same reward) and cost <= the input cost.
+        ``cost`` is the float32 sum along the plan.
+    """
+    return _batched(_two_opt_single)(instance, solution, max_iters)
+
+
+@jax.jit
+def budget_gate(instance: SOPInstance, solution: Solution) -> Solution:
+    """Drop sets from the end of the plan until its cost fits the budget.
+
+    Keeps the longest prefix of the visited nodes whose cost, plus the return to the end
+    node of a closed tour, is within ``instance.budget``. Single or batched like
+    :func:`two_opt`.
+    """
+    return _batched(_budget_gate_single)(instance, solution)
