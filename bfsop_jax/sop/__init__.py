@@ -6,7 +6,7 @@ from bfsop_jax.sop.exact import solve_exact
 from bfsop_jax.sop.io import read_sop
 from bfsop_jax.sop.two_opt import budget_gate, two_opt
 from bfsop_jax.sop.types import Solution, SOPInstance, evaluate, plan_length, validate
-from bfsop_jax.sop.vns import solve_vns
+from bfsop_jax.sop.vns import solve_greedy, solve_vns
 
 __all__ = [
     "SOPInstance",
@@ -16,6 +16,7 @@ __all__ = [
     "plan_length",
     "read_sop",
     "solve_exact",
+    "solve_greedy",
     "solve_vns",
     "solve_vns_batch",
     "two_opt",

@@ -1,4 +1,8 @@
-"""Reader for ``.sop`` files of the public Set Orienteering benchmark (SPEC 8.2).
+"""Instance sources: ``.sop`` files of the public SOP benchmark, and random instances.
+
+``read_sop`` reads the public Set Orienteering benchmark (SPEC 8.2); ``random_instance``
+draws synthetic instances shaped like the navigation ones (start node + sets of
+viewpoints around landmarks, open path), for tests and benchmarks.
 
 Format (TSPLIB-like)::
 
@@ -34,7 +38,7 @@ import numpy as np
 
 from bfsop_jax.sop.types import SOPInstance, validate
 
-__all__ = ["read_sop"]
+__all__ = ["read_sop", "random_instance"]
 
 _EDGE_WEIGHT_TYPES = ("CEIL_2D", "EUC_2D")
 _REQUIRED = ("DIMENSION", "TMAX", "SETS", "EDGE_WEIGHT_TYPE")
@@ -131,12 +135,15 @@ def _parse(text: str) -> SOPInstance:
         raise _fail(header["TMAX"][1], f"TMAX must be a non-negative number, got {budget}")
 
     if len(coords) != n:
-        raise _fail(last, f"DIMENSION is {n} but NODE_COORD_SECTION has {len(coords)} nodes")
+        raise _fail(
+            header["DIMENSION"][1],
+            f"DIMENSION is {n} but NODE_COORD_SECTION has {len(coords)} nodes",
+        )
     if sorted(coords) != list(range(1, n + 1)):
         bad = min(set(coords) ^ set(range(1, n + 1)))
         raise _fail(last, f"node ids must be 1..{n}; node {bad} is missing or out of range")
     if len(sets) != k:
-        raise _fail(last, f"SETS is {k} but GTSP_SET_SECTION has {len(sets)} sets")
+        raise _fail(header["SETS"][1], f"SETS is {k} but GTSP_SET_SECTION has {len(sets)} sets")
 
     set_id = np.full(n, -1, np.int32)
     set_reward = np.zeros(k, np.float32)
@@ -215,3 +222,58 @@ def _header_int(header: dict[str, tuple[str, int]], key: str) -> int:
 def _header_float(header: dict[str, tuple[str, int]], key: str) -> float:
     value, lineno = header[key]
     return _float(value, lineno, key)
+
+
+def random_instance(
+    seed: int | np.random.Generator,
+    num_sets: int = 15,
+    viewpoints: int = 5,
+    closed: bool = False,
+    budget_scale: float = 0.35,
+    masked_sets: int = 0,
+    box: tuple[float, float] = (30.0, 20.0),
+) -> SOPInstance:
+    """A random instance shaped like the navigation SOP (SPEC 8.1).
+
+    Node 0 is the start (set 0, reward 0); set k = 1..num_sets has ``viewpoints`` nodes
+    0.5-1.0 m around a landmark drawn uniformly in a ``box`` (metres); rewards are uniform
+    in [0.1, 1]. Costs are Euclidean distances times a detour factor of 1.2. The budget is
+    ``budget_scale`` times a nearest-neighbour tour through all landmarks, which lets about
+    half of the sets fit at the default. The last ``masked_sets`` sets are masked: reward
+    0, their nodes padding (set_id -1, unreachable), as for missing landmarks.
+
+    Shapes: N = 1 + num_sets * viewpoints nodes, K = num_sets + 1 sets.
+    """
+    rng = np.random.default_rng(seed)
+    k, v = num_sets, viewpoints
+    centres = rng.uniform((0.0, 0.0), box, size=(k, 2))
+    angle = rng.uniform(0.0, 2 * np.pi, size=(k, v))
+    radius = rng.uniform(0.5, 1.0, size=(k, v))
+    around = np.stack([np.cos(angle), np.sin(angle)], axis=-1) * radius[..., None]
+    start = rng.uniform((0.0, 0.0), box)
+    coords = np.concatenate([start[None], (centres[:, None, :] + around).reshape(-1, 2)])
+    cost = 1.2 * np.linalg.norm(coords[:, None] - coords[None], axis=-1)
+    set_id = np.concatenate([[0], np.repeat(np.arange(1, k + 1), v)]).astype(np.int32)
+    reward = np.concatenate([[0.0], rng.uniform(0.1, 1.0, k)])
+    # nearest-neighbour tour through the landmarks sets the budget scale
+    here, left, length = start, list(range(k)), 0.0
+    while left:
+        dist = [np.linalg.norm(centres[j] - here) for j in left]
+        j = left.pop(int(np.argmin(dist)))
+        length += 1.2 * min(dist)
+        here = centres[j]
+    if masked_sets:
+        masked = np.isin(set_id, np.arange(k - masked_sets + 1, k + 1))
+        set_id[masked] = -1
+        cost[masked, :] = np.inf
+        cost[:, masked] = np.inf
+        reward[k - masked_sets + 1 :] = 0.0
+    return SOPInstance.create(
+        cost=cost,
+        set_id=set_id,
+        set_reward=reward,
+        start=0,
+        end=0 if closed else -1,
+        budget=budget_scale * length,
+        coords=coords,
+    )
