@@ -1,0 +1,128 @@
+"""JAX bounded 2-opt and budget gate: never longer, same sets, exact node choice, batching."""
+
+from __future__ import annotations
+
+import chex
+import jax
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bfsop_jax.sop import Solution, SOPInstance, budget_gate, evaluate, plan_length, two_opt
+from bfsop_jax.sop import vns as V
+from bfsop_jax.sop.io import random_instance
+
+SETS, VIEWS = 6, 3  # fixed shapes: one compilation for all examples
+
+
+def _random_plan(inst: SOPInstance, rng: np.random.Generator) -> Solution:
+    """Random order of a random subset of sets, random node in each; padded."""
+    sets = [s for s in range(inst.num_sets) if inst.set_reward[s] > 0]
+    chosen = rng.permutation(sets)[: rng.integers(0, len(sets) + 1)]
+    nodes = [int(inst.start)]
+    nodes += [int(rng.choice(np.flatnonzero(inst.set_id == s))) for s in chosen]
+    if int(inst.end) >= 0:
+        nodes.append(int(inst.end))
+    reward, cost, _ = evaluate(inst, nodes)
+    length = plan_length(inst.num_sets)
+    padded = np.full(length, -1, np.int32)
+    padded[: len(nodes)] = nodes
+    return Solution(nodes=padded, reward=np.float32(reward), cost=np.float32(cost))
+
+
+def _visited_sets(inst: SOPInstance, nodes) -> list[int]:
+    nodes = [int(v) for v in np.asarray(nodes) if v >= 0]
+    inner = nodes[1:-1] if int(inst.end) >= 0 else nodes[1:]
+    return sorted(int(inst.set_id[v]) for v in inner)
+
+
+def _order_cost(inst: SOPInstance, nodes) -> float:
+    """NumPy layered DP: best node choice for the plan's set order."""
+    view = V.set_view(inst.replace(budget=np.float32(np.inf)))
+    compact = {int(s): k for k, s in enumerate(view.set_ids)}
+    order = [compact[int(inst.set_id[v])] for v in _inner(inst, nodes)]
+    rest = [s for s in range(view.num_sets) if s not in order]
+    perm = np.array(order + rest)[None]
+    return float(V._tables(view, perm, np.array([len(order)])).length[0])
+
+
+def _inner(inst, nodes):
+    nodes = [int(v) for v in np.asarray(nodes) if v >= 0]
+    return nodes[1:-1] if int(inst.end) >= 0 else nodes[1:]
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.booleans(), st.integers(0, 2), st.floats(0.2, 2.0))
+def test_two_opt_never_longer_and_keeps_the_sets(seed, closed, masked, scale):
+    inst = random_instance(seed, SETS, VIEWS, closed=closed, masked_sets=masked, budget_scale=scale)
+    plan = _random_plan(inst, np.random.default_rng(seed))
+    out = two_opt(inst, plan)
+    reward, cost, _ = evaluate(inst, out.nodes)
+    assert out.nodes.shape == plan.nodes.shape
+    assert int(out.nodes[0]) == int(inst.start)
+    assert _visited_sets(inst, out.nodes) == _visited_sets(inst, plan.nodes)
+    assert cost <= float(plan.cost) + 1e-4
+    assert abs(float(out.cost) - cost) <= 1e-4 * max(1.0, cost)
+    assert abs(float(out.reward) - reward) <= 1e-5 and abs(reward - float(plan.reward)) <= 1e-5
+    # the node choice is optimal for the returned set order
+    assert cost <= _order_cost(inst, out.nodes) + 1e-4
+    gated = budget_gate(inst, out)
+    reward_g, cost_g, ok = evaluate(inst, gated.nodes)
+    assert ok and cost_g <= float(inst.budget) + 1e-4
+    kept = _inner(inst, gated.nodes)
+    assert kept == _inner(inst, out.nodes)[: len(kept)]  # a prefix of the plan
+    assert abs(float(gated.reward) - reward_g) <= 1e-5
+
+
+def test_intra_set_exchange_alone_is_the_exact_dp():
+    for seed in range(4):
+        inst = random_instance(seed, SETS, VIEWS, closed=seed % 2 == 0, budget_scale=3.0)
+        plan = _random_plan(inst, np.random.default_rng(seed + 50))
+        out = two_opt(inst, plan, max_iters=0)
+        order = [int(inst.set_id[v]) for v in _inner(inst, out.nodes)]
+        assert order == [int(inst.set_id[v]) for v in _inner(inst, plan.nodes)]
+        np.testing.assert_allclose(float(out.cost), _order_cost(inst, plan.nodes), rtol=1e-5)
+
+
+def test_uncrosses_a_line():
+    xs = np.arange(6.0)  # start at 0, one node per set on a line
+    cost = np.abs(xs[:, None] - xs[None])
+    inst = SOPInstance.create(cost, np.arange(6), [0.0] + [1.0] * 5, 0, -1, 100.0)
+    plan = Solution(
+        nodes=np.array([0, 4, 3, 2, 1, 5, -1], np.int32), reward=np.float32(5), cost=np.float32(12)
+    )
+    out = two_opt(inst, plan)
+    np.testing.assert_array_equal(out.nodes, [0, 1, 2, 3, 4, 5, -1])
+    assert float(out.cost) == 5.0
+
+
+def test_budget_gate_drops_from_the_end():
+    xs = np.arange(6.0)
+    cost = np.abs(xs[:, None] - xs[None])
+    inst = SOPInstance.create(cost, np.arange(6), [0.0] + [1.0] * 5, 0, 0, 6.5)
+    plan = Solution(
+        nodes=np.array([0, 1, 2, 3, 4, 5, 0], np.int32), reward=np.float32(5), cost=np.float32(10)
+    )
+    out = budget_gate(inst, plan)
+    np.testing.assert_array_equal(out.nodes, [0, 1, 2, 3, 0, -1, -1])
+    assert float(out.cost) == 6.0 and float(out.reward) == 3.0
+
+
+def test_batch_matches_single_and_compiles_once():
+    insts = [random_instance(s, SETS, VIEWS, closed=s % 2 == 0, budget_scale=0.8) for s in range(4)]
+    plans = [_random_plan(i, np.random.default_rng(s)) for s, i in enumerate(insts)]
+    batch_inst = jax.tree_util.tree_map(lambda *x: np.stack(x), *insts)
+    batch_plan = jax.tree_util.tree_map(lambda *x: np.stack(x), *plans)
+    out = two_opt(batch_inst, batch_plan)
+    for b in range(4):
+        single = two_opt(insts[b], plans[b])
+        np.testing.assert_array_equal(out.nodes[b], single.nodes)
+        np.testing.assert_allclose(out.cost[b], single.cost, rtol=1e-6)
+
+    @jax.jit
+    @chex.assert_max_traces(n=1)
+    def plan_and_gate(inst, plan):
+        return budget_gate(inst, two_opt(inst, plan))
+
+    for _ in range(3):
+        jax.block_until_ready(plan_and_gate(batch_inst, batch_plan))

@@ -1,0 +1,102 @@
+"""VNS teacher: feasibility properties, exact move evaluation, determinism, optimality rate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+
+from bfsop_jax.sop import SOPInstance, solve_exact, solve_greedy, solve_vns
+from bfsop_jax.sop import vns as V
+from bfsop_jax.sop.io import random_instance
+from tests.test_sop_exact import SETTINGS, assert_valid_plan, small_instances
+
+QUICK = dict(max_iters=40, max_no_improve=20)
+
+
+@SETTINGS
+@given(small_instances(max_sets=6))
+def test_vns_plans_are_feasible_and_not_worse_than_greedy(inst):
+    sol, greedy = solve_vns(inst, seed=3, return_greedy=True, **QUICK)
+    assert_valid_plan(inst, sol)
+    assert_valid_plan(inst, greedy)
+    assert float(sol.reward) >= float(greedy.reward) - 1e-6
+    if abs(float(sol.reward) - float(greedy.reward)) <= 1e-6:
+        assert float(sol.cost) <= float(greedy.cost) + 1e-5
+    np.testing.assert_array_equal(solve_greedy(inst).nodes, greedy.nodes)
+
+
+def _order_cost(view: V.SetView, order: list[int]) -> float:
+    rest = [s for s in range(view.num_sets) if s not in order]
+    perm = np.array(order + rest)[None]
+    return float(V._tables(view, perm, np.array([len(order)])).length[0])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_every_move_cost_is_exact(seed):
+    """Batched move costs equal a fresh layered DP on the moved set order."""
+    rng = np.random.default_rng(seed)
+    inst = random_instance(seed, num_sets=7, viewpoints=3, closed=seed % 2 == 1, budget_scale=1.5)
+    view = V.set_view(inst)
+    width = 3
+    perm = np.stack([rng.permutation(view.num_sets) for _ in range(width)])
+    m = rng.integers(0, view.num_sets + 1, size=width)
+    tables = V._tables(view, perm, m)
+    for which in (1, 2):
+        for mv in V._neighbourhood(view, perm, m, tables, which):
+            for w, a, b in zip(*np.nonzero(mv.valid), strict=True):
+                new_perm, new_m = V._apply(perm[w], int(m[w]), mv.kind, int(a), int(b))
+                assert sorted(new_perm) == list(range(view.num_sets))
+                want = _order_cost(view, list(new_perm[:new_m]))
+                assert mv.cost[w, a, b] == pytest.approx(want, rel=1e-9), (mv.kind, a, b)
+
+
+def test_same_seed_same_plan():
+    inst = random_instance(11)
+    a = solve_vns(inst, seed=5, max_iters=200, max_no_improve=100)
+    b = solve_vns(inst, seed=5, max_iters=200, max_no_improve=100)
+    np.testing.assert_array_equal(a.nodes, b.nodes)
+    assert a.cost == b.cost
+
+
+def test_matches_exact_on_most_small_instances():
+    """Navigation-like instances with 8 sets x 3 viewpoints, default settings."""
+    hits = 0
+    trials = 12
+    for seed in range(trials):
+        inst = random_instance(100 + seed, num_sets=8, viewpoints=3, closed=seed % 3 == 0)
+        sol = solve_vns(inst, seed=seed)
+        best = solve_exact(inst, reference=sol)
+        assert_valid_plan(inst, sol)
+        assert float(sol.reward) <= float(best.reward) + 1e-6
+        hits += abs(float(sol.reward) - float(best.reward)) <= 1e-6
+    assert hits >= 11, hits
+
+
+def test_nothing_reachable_gives_start_only_plan():
+    cost = np.full((4, 4), np.inf)
+    np.fill_diagonal(cost, 0.0)
+    inst = SOPInstance.create(cost, [0, 1, 1, 2], [0.0, 1.0, 1.0], 0, -1, 100.0)
+    assert solve_vns(inst).node_list() == [0]
+    closed = inst.replace(end=np.int32(0))
+    assert solve_vns(closed).node_list() == [0, 0]
+
+
+def test_masked_instance_gives_empty_plan():
+    inst = random_instance(0, num_sets=3, masked_sets=3)
+    sol = solve_vns(inst)
+    assert sol.node_list() == [0] and float(sol.reward) == 0 and float(sol.cost) == 0
+
+
+def test_zero_budget():
+    inst = random_instance(2, budget_scale=0.0)
+    assert solve_vns(inst).node_list() == [0]
+
+
+def test_path_to_a_goal_node():
+    xs = np.array([0.0, 1.0, 2.0, 5.0, 3.0])  # node 3 is the goal, alone in set 3
+    cost = np.abs(xs[:, None] - xs[None])
+    inst = SOPInstance.create(cost, [0, 1, 2, 3, 4], [0.0, 1.0, 1.0, 0.0, 1.0], 0, 3, 5.0)
+    sol = solve_vns(inst)
+    assert_valid_plan(inst, sol)
+    assert sol.node_list() == [0, 1, 2, 4, 3] and float(sol.cost) == 5.0
