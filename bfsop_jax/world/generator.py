@@ -8,21 +8,30 @@ shapes so that one preset compiles once and ``jax.vmap`` over keys batches whole
    partition line becomes a wall. After all splits, one door is cut in every partition line
    (by induction over the partition tree this connects the house) plus ``preset.extra_doors``
    second doors on long lines, which add loops. Doors keep away from T-junctions.
-2. **Room types**: the smallest rooms become bathrooms; the other rooms are split into living
-   rooms (favouring large rooms), kitchens and bedrooms by ``ROOM_TYPE_SHARE``; every house
-   with >= 4 rooms has at least one room of each type.
+2. **Room types**: the smallest rooms become bathrooms; living rooms are the hubs (most
+   doors, then large rooms); kitchens and bedrooms share the rest at random, with counts from
+   ``ROOM_TYPE_SHARE``; every house with >= 4 rooms has at least one room of each type.
 3. **Furniture**: a fixed plan of slots per room type (required pieces first). For every slot
-   a batch of random candidate rectangles (mostly flush against a wall, tables free-standing)
-   is tested against the room interior, the pieces already placed and the clearance zones in
-   front of every door; a random valid candidate wins (full size preferred, then shrunk
-   copies). Any two pieces, and a piece and a wall it does not touch, keep a passage of
-   ``2 * robot_radius_m + 0.2`` m, so furniture never cuts a room in two for the robot.
+   a batch of candidate rectangles (every wall corner, then random spots along the walls;
+   tables free-standing) is tested against the room interior, the pieces already placed and
+   the clearance zones in front of every door; a random valid candidate wins (full size
+   preferred, then shrunk copies). Any two pieces, and a piece and a wall it does not touch,
+   keep a passage of ``2 * robot_radius_m + 0.2`` m, and the zone in front of a door is a
+   passage deep, so furniture never cuts a room in two for the robot. A required piece
+   (kitchen CounterTop, bathroom Toilet and Sink, bedroom Bed) that fits nowhere else stands
+   in the middle of the room, shrunk to leave a passage all round (a last resort, rarely
+   used).
 4. **Targets** spawn on receptacles by ProcTHOR's rule (see ``constants`` and
-   ``procthor/spawn_facts.md``); a HousePlant may also stand on the floor.
+   ``procthor/spawn_facts.md``); a HousePlant may also stand on the floor. The per-house bias
+   0.4 * Beta(3.5, 1.9) - 0.3 is drawn by inverse CDF from a quantile table
+   (:func:`sample_house_bias`), which compiles far smaller than ``jax.random.beta``.
 5. **Raster**: walls, door gaps and furniture are rasterised by broadcasting rectangle
    bounds (a [N, H] x [N, W] matrix product), then every free cell outside the largest
    4-connected free component is marked occupied (:func:`fill_free_pockets`), so all free
    cells are mutually reachable by construction.
+
+Randomness: each stage draws all its uniforms in one ``jax.random`` call (every call inlines
+its own hash, and the program must stay small: it is compiled on 2-core CI machines).
 
 Geometry: walls lie on integer cell boundaries ("lines"); a wall on line ``c`` occupies cells
 ``c - tl .. c + tr - 1`` (``tl + tr`` = wall thickness in cells). Furniture and targets live in
@@ -47,7 +56,14 @@ from bfsop_jax.config import Preset, get_preset
 from bfsop_jax.world import constants as C
 from bfsop_jax.world.types import House
 
-__all__ = ["Floorplan", "fill_free_pockets", "generate_floorplan", "generate_house"]
+__all__ = [
+    "Floorplan",
+    "fill_free_pockets",
+    "free_space_components",
+    "generate_floorplan",
+    "generate_house",
+    "sample_house_bias",
+]
 
 # --- furniture plan ----------------------------------------------------------------------
 # Per room type: (category, probability, free-standing). Required pieces come first with
@@ -99,7 +115,7 @@ _FOOTPRINT = np.array(
 _ONE_PER_ROOM = np.array([n in C.ONE_PER_ROOM_TARGETS for n in C.TARGET_NAMES])
 _HOUSE_PLANT = C.TARGET_NAMES.index("HousePlant")
 
-_N_CANDIDATES = 32  # random placements tried per furniture slot (half of them shrunk)
+_N_CANDIDATES = 32  # placements tried per furniture slot (corners, then random; half shrunk)
 _N_DOOR_CANDIDATES = 32  # random door positions tried per partition line
 _DOOR_WIDTH_M = (0.9, 1.2)
 _DOOR_ZONE_SIDE_M = 0.1  # furniture-free margin beyond a door's jambs (its depth: a passage)
