@@ -507,42 +507,43 @@ def _fit(view: SetView, perm: np.ndarray, m: np.ndarray) -> np.ndarray:
     return out
 
 
-def _shake(
-    perm: np.ndarray, m: int, which: int, rng: np.random.Generator
-) -> tuple[np.ndarray, int]:
-    """Segment move (1) or segment exchange (2) on the whole permutation.
+def _shakes(
+    perm: np.ndarray, m: int, which: int, width: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """``width`` random segment moves (1) or segment exchanges (2) of one permutation.
 
-    Moved entries count as visited when they land inside the visited prefix and as
-    unvisited otherwise; the new visited prefix is the leading run of visited entries.
+    Returns permutations [W, M] and visited counts [W]. Moved entries count as visited
+    when they land inside the visited prefix and as unvisited otherwise; the new visited
+    prefix is the leading run of visited entries. Entries are reordered by sorting keys:
+    a moved segment gets keys just below the position it lands before.
     """
     n = perm.shape[0]
-    visited = np.arange(n) < m
+    perms = np.broadcast_to(perm, (width, n))
+    if n < 2 + which:
+        return perms.copy(), np.full(width, m)
+    cuts = np.sort(np.argsort(rng.random((width, n)), axis=1)[:, : 2 + which], axis=1)
+    pos = np.arange(n)[None, :]
+    visited = np.broadcast_to(pos < m, (width, n))
+    step = 1.0 / (n + 1)  # keeps a moved segment in order between two integer keys
     if which == 1:
-        if n < 3:
-            return perm, m
-        a, b, c = np.sort(rng.choice(n, 3, replace=False))
-        if rng.integers(2) == 0:  # segment [a, b] moves up, before position c
-            seg = np.arange(a, b + 1)
-            order = np.concatenate([np.arange(a), np.arange(b + 1, c), seg, np.arange(c, n)])
-            seg_visited = c < m
-        else:  # segment [b, c] moves down, to position a
-            seg = np.arange(b, c + 1)
-            order = np.concatenate([np.arange(a), seg, np.arange(a, b), np.arange(c + 1, n)])
-            seg_visited = a < m
-        tag = visited.copy()
-        tag[seg] = seg_visited
+        a, b, c = (cuts[:, i : i + 1] for i in range(3))
+        up = rng.random((width, 1)) < 0.5
+        # up: [a, b] moves before position c; down: [b, c] moves to position a
+        seg = np.where(up, (pos >= a) & (pos <= b), (pos >= b) & (pos <= c))
+        lands = np.where(up, c, a)
+        first = np.where(up, a, b)
+        key = np.where(seg, lands - 1 + (pos - first + 1) * step, pos)
+        tag = np.where(seg, lands < m, visited)
     else:
-        if n < 4:
-            return perm, m
-        a, b, c, d = np.sort(rng.choice(n, 4, replace=False))
-        low, high = np.arange(a, b + 1), np.arange(c, d + 1)
-        order = np.concatenate([np.arange(a), high, np.arange(b + 1, c), low, np.arange(d + 1, n)])
-        tag = visited.copy()
-        tag[high] = a < m  # lands where the low segment started
-        tag[low] = c < m
-    new_tag = tag[order]
-    run = int(np.argmin(new_tag)) if not new_tag.all() else n
-    return perm[order], run
+        a, b, c, d = (cuts[:, i : i + 1] for i in range(4))
+        low, high = (pos >= a) & (pos <= b), (pos >= c) & (pos <= d)
+        key = np.where(high, a - 1 + (pos - c + 1) * step, pos)
+        key = np.where(low, c - 1 + (pos - a + 1) * step, key)
+        tag = np.where(high, a < m, np.where(low, c < m, visited))
+    order = np.argsort(key, axis=1, kind="stable")
+    new_tag = np.take_along_axis(tag, order, axis=1)
+    run = np.where(new_tag.all(axis=1), n, np.argmin(new_tag, axis=1))
+    return np.take_along_axis(perms, order, axis=1), run
 
 
 # ----------------------------------------------------------------------------------------
@@ -592,22 +593,24 @@ def _local_search(
         better &= (gain > eps_r) | (((np.abs(gain) <= eps_r) | trade[None, :]) & shorter)
         n_valid = valid.sum(axis=1)
         n_better = better.sum(axis=1)
-        keys = np.where(better, rng.random(better.shape), -1.0)
-        pick = keys.argmax(axis=1)
+        # a uniformly random improving move: what the first improving random trial would be
+        target = np.floor(rng.random(len(idx)) * n_better)
+        pick = np.argmax(np.cumsum(better, axis=1) > target[:, None], axis=1)
         p = np.where(n_better > 0, n_better / np.maximum(n_valid, 1), 1.0)
         cost_trials = rng.geometric(p)
         sizes = np.cumsum([0] + [mv.cost[0].size for mv in moves])
-        for r, wi in enumerate(idx):
+        kinds = (np.searchsorted(sizes, pick, side="right") - 1).tolist()
+        pick, gain_pick = pick.tolist(), gain[np.arange(len(idx)), pick].tolist()
+        for r, wi in enumerate(idx.tolist()):
             if n_better[r] == 0 or cost_trials[r] > trials_left[wi]:
                 active[wi] = False
                 continue
             trials_left[wi] -= cost_trials[r]
-            k = int(np.searchsorted(sizes, pick[r], side="right") - 1)
-            mv = moves[k]
-            a, b = np.unravel_index(pick[r] - sizes[k], mv.cost.shape[1:])
-            if mv.kind == "replace" and gain[r, pick[r]] < -eps_r:
+            mv = moves[kinds[r]]
+            a, b = divmod(pick[r] - int(sizes[kinds[r]]), mv.cost.shape[2])
+            if mv.kind == "replace" and gain_pick[r] < -eps_r:
                 banned[wi, perm[wi][a]] = True
-            perm[wi], m[wi] = _apply(perm[wi], int(m[wi]), mv.kind, int(a), int(b))
+            perm[wi], m[wi] = _apply(perm[wi], int(m[wi]), mv.kind, a, b)
     return perm, m
 
 
@@ -731,10 +734,7 @@ def solve_vns(
             break
         k = 1
         while k <= 2:
-            batch = perm[None].repeat(width, axis=0)
-            ms = np.full(width, m)
-            for i in range(width):
-                batch[i], ms[i] = _shake(perm, m, k, rng)
+            batch, ms = _shakes(perm, m, k, width, rng)
             ms = _fit(view, batch, ms)
             batch, ms = _local_search(view, batch, ms, k, rng, trades)
             rew, cost = _score(view, batch, ms)
