@@ -107,7 +107,7 @@ def bench_best_known(sop: Path, limit: int, max_sets: int, vns_kwargs) -> None:
     rows = list(csv.DictReader((sop / "best_known_set2.csv").open()))
     # the leading number of an instance name is its count of sets (start set excluded)
     rows = [r for r in rows if int(re.match(r"\d+", r["instance"]).group()) <= max_sets]
-    rows = rows[:limit]
+    rows = rows[:: max(1, len(rows) // max(limit, 1))][:limit]  # spread over sizes and budgets
     gaps, pub_gaps, wall, cpu, pub = [], [], [], [], []
     for row in tqdm(rows, desc="best known", unit="inst"):
         inst = read_sop(sop / "instances" / row["file"])
