@@ -148,6 +148,9 @@ def test_vmap_and_no_recompilation():
     assert np.all(np.isfinite(np.asarray(states.belief)))
     assert np.all(np.asarray(states.path_length) <= np.asarray(states.budget))
     assert np.any(np.asarray(states.belief) != 0)
+    # Landmarks of interest are the receptacles seen whose prior is positive.
+    lois, seen = np.asarray(states.landmarks_seen), np.asarray(states.receptacles_seen)
+    assert np.all(seen[lois]) and seen.any()
 
 
 def test_reset_is_deterministic_and_rejects_bad_prior():

@@ -34,7 +34,7 @@ from bfsop_jax.navigation.grid import (
 from bfsop_jax.navigation.path import advance, is_traversable
 from bfsop_jax.sensing.detection import landmarks_of_interest, observe, verified_targets
 from bfsop_jax.sensing.mapping import update_belief
-from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS
+from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS, is_receptacle
 from bfsop_jax.world.types import House
 
 __all__ = ["reset", "step", "sense", "make_action", "sample_start_pose"]
@@ -50,11 +50,18 @@ def sense(state: EnvState, pose: jax.Array, preset: Preset, active: jax.Array = 
     det = observe(state.house, pose, preset)
     found = verified_targets(det, state.house, state.category, preset)
     lois = landmarks_of_interest(det, state.house, state.prior, state.category, preset)
+    # Any large enough receptacle, so a partial map can later pose tasks of any category.
+    receptacles = (
+        det.in_view
+        & (det.area_px >= preset.landmark_px)
+        & is_receptacle(state.house.object_category)
+    )
     active = jnp.asarray(active)
     return state.replace(
         belief=jnp.where(active, belief, state.belief),
         found=state.found | (found & active),
         landmarks_seen=state.landmarks_seen | (lois & active),
+        receptacles_seen=state.receptacles_seen | (receptacles & active),
     )
 
 
@@ -123,6 +130,7 @@ def reset(
         budget=budget,
         found=jnp.zeros((m,), bool),
         landmarks_seen=jnp.zeros((m,), bool),
+        receptacles_seen=jnp.zeros((m,), bool),
         steps=jnp.zeros((), jnp.int32),
         done=budget <= 0.0,
     )

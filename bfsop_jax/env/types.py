@@ -24,6 +24,7 @@ class EnvState:
     budget: jax.Array  # float32 []: B, metres
     found: jax.Array  # bool [M]: verified instances of the target (F_t)
     landmarks_seen: jax.Array  # bool [M]: landmarks of interest detected so far
+    receptacles_seen: jax.Array  # bool [M]: receptacles detected so far, whatever the category
     steps: jax.Array  # int32 []: env.step calls so far
     done: jax.Array  # bool []: the budget gate has closed
 

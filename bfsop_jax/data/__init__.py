@@ -1,0 +1,6 @@
+"""Teacher-labelled datasets: generation from training houses and resumable shards."""
+
+from bfsop_jax.data.generate import DataConfig, generate_dataset
+from bfsop_jax.data.shards import ShardStore
+
+__all__ = ["DataConfig", "ShardStore", "generate_dataset"]

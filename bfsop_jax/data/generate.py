@@ -1,0 +1,222 @@
+"""Teacher-labelled SOP datasets from training houses (SPEC 9.2).
+
+Retrospective virtual tasks (the paper's teacher-student symmetry): an exploration run
+in a training house leaves a *partial* belief map and the receptacles seen on the way.
+That map is reused to pose many new SOP tasks (other start positions, remaining budgets,
+target categories and subsets of the pending landmarks); the instance is built on the
+partial, optimistic map exactly as the online agent would build it
+(:func:`bfsop_jax.sop.builder.build_instance`), never on the true house, and labelled by
+the VNS teacher through the batched host callback from inside the jitted function.
+
+One record per instance, fixed shapes per preset (N nodes, K sets, T = K + 1):
+``coords [N, 2]``, ``cost [N, N]``, ``set_id [N]``, ``set_reward [K]``, ``budget []``,
+``teacher_nodes [T]`` (start first, -1 padded), ``teacher_reward []``,
+``teacher_cost []``, plus provenance ``house_seed``, ``category``, ``source``
+(0 = virtual task, 1 = on-trajectory decision).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
+
+from bfsop_jax.agents import fbe_action, rollout
+from bfsop_jax.config import EVAL_SEED_START, Preset, get_preset
+from bfsop_jax.data.shards import ShardStore
+from bfsop_jax.env import reset
+from bfsop_jax.env.types import EnvState
+from bfsop_jax.navigation.distance import distance_field
+from bfsop_jax.navigation.grid import plan_cell_to_xy, planning_blocked
+from bfsop_jax.sensing.mapping import known_free
+from bfsop_jax.sop.builder import build_instance
+from bfsop_jax.sop.callback import vns_callback
+from bfsop_jax.sop.types import Solution, SOPInstance
+from bfsop_jax.world.constants import N_TARGETS
+from bfsop_jax.world.generator import generate_house
+from bfsop_jax.world.prior import default_prior
+
+__all__ = [
+    "DataConfig",
+    "SOURCE_ON_TRAJECTORY",
+    "SOURCE_VIRTUAL",
+    "explore",
+    "generate_dataset",
+    "label_virtual_tasks",
+    "virtual_tasks",
+]
+
+SOURCE_VIRTUAL = 0
+SOURCE_ON_TRAJECTORY = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class DataConfig:
+    """What a dataset is made of; equal configs give equal datasets (the cache key)."""
+
+    preset: str = "demo"
+    houses: int = 48  # training houses
+    seed_start: int = 0  # first training house seed (all below EVAL_SEED_START)
+    houses_per_shard: int = 4
+    tasks_per_house: int = 24  # retrospective virtual tasks per exploration run
+    explore_budget: tuple[float, float] = (0.3, 1.0)  # fraction of B spent exploring
+    task_budget: tuple[float, float] = (0.1, 0.6)  # remaining budget of a task, fraction of B
+    keep_landmark: float = 0.8  # chance that a seen landmark is pending in a task
+    vns_iters: int = 2000
+    vns_no_improve: int = 1000
+
+    def __post_init__(self):
+        if self.seed_start < 0 or self.seed_start + self.houses > EVAL_SEED_START:
+            raise ValueError(
+                f"training house seeds {self.seed_start}..{self.seed_start + self.houses - 1} "
+                f"must lie in [0, {EVAL_SEED_START}) (evaluation seeds start there)"
+            )
+        if self.houses < 1 or self.houses_per_shard < 1 or self.tasks_per_house < 1:
+            raise ValueError("houses, houses_per_shard and tasks_per_house must be >= 1")
+
+    @property
+    def n_shards(self) -> int:
+        return math.ceil(self.houses / self.houses_per_shard)
+
+
+def explore(
+    keys: jax.Array, houses, budgets: jax.Array, prior: jax.Array, preset: Preset
+) -> EnvState:
+    """Frontier-exploration runs (batched over houses) until each budget is spent."""
+    n_steps = math.ceil(3 * preset.budget_m / (preset.micro_steps * preset.move_step_m))
+
+    def one(key, house, budget):
+        state = reset(key, house, 0, preset, prior, budget)
+        return rollout(state, fbe_action, preset, n_steps)[0]
+
+    return jax.vmap(one)(keys, houses, budgets)
+
+
+def virtual_tasks(
+    key: jax.Array, state: EnvState, n_tasks: int, preset: Preset, config: DataConfig
+) -> tuple[SOPInstance, jax.Array]:
+    """``n_tasks`` SOP instances posed on the final partial map of one exploration run.
+
+    Start positions are drawn among known-free, traversable cells reachable from where the
+    run ended; categories uniformly among the nine targets; each seen landmark with a
+    positive prior is pending with probability ``config.keep_landmark``.
+    Returns ``(instances [n_tasks], categories [n_tasks])``.
+    """
+    blocked = planning_blocked(state.belief, preset)
+    hp, wp = preset.plan_shape
+    f = preset.plan_factor
+    free_fine = known_free(state.belief, preset)
+    h, w = free_fine.shape
+    free_fine = jnp.pad(free_fine, ((0, hp * f - h), (0, wp * f - w)))
+    known = free_fine.reshape(hp, f, wp, f).all(axis=(1, 3))
+    reach = jnp.isfinite(distance_field(blocked, state.pose[:2], preset))
+    starts_ok = (known & ~blocked & reach).ravel()
+
+    k_start, k_cat, k_bud, k_keep = jax.random.split(key, 4)
+    logits = jnp.where(starts_ok, 0.0, -jnp.inf)
+    cells = jax.random.categorical(k_start, logits, shape=(n_tasks,))
+    cells = jnp.stack([cells // wp, cells % wp], axis=-1)
+    starts = plan_cell_to_xy(cells, preset)
+    starts = jnp.where(starts_ok.any(), starts, state.pose[None, :2])
+    categories = jax.random.randint(k_cat, (n_tasks,), 0, N_TARGETS)
+    lo, hi = config.task_budget
+    budgets = preset.budget_m * jax.random.uniform(k_bud, (n_tasks,), minval=lo, maxval=hi)
+    keep = jax.random.bernoulli(
+        k_keep, config.keep_landmark, (n_tasks,) + state.receptacles_seen.shape
+    )
+    house = state.house
+
+    def one(start, budget, category, keep):
+        candidates = state.receptacles_seen & keep
+        inst, _ = build_instance(
+            state.belief, start, budget, candidates, house.object_category, house.object_xy,
+            house.object_half_extent, state.prior, category, preset,
+        )  # fmt: skip
+        return inst
+
+    return jax.vmap(one)(starts, budgets, categories, keep), categories
+
+
+def label_virtual_tasks(
+    key: jax.Array, state: EnvState, seeds: jax.Array, preset: Preset, config: DataConfig
+) -> tuple[SOPInstance, jax.Array, Solution]:
+    """Pose virtual tasks on one final map and label them with the VNS host callback."""
+    instances, categories = virtual_tasks(key, state, seeds.shape[0], preset, config)
+    labels = vns_callback(
+        instances, seeds, max_iters=config.vns_iters, max_no_improve=config.vns_no_improve
+    )
+    return instances, categories, labels
+
+
+def _records(instances, categories, labels, house_seeds, source) -> dict[str, np.ndarray]:
+    inst = jax.device_get(instances)
+    lab = jax.device_get(labels)
+    useful = (np.asarray(inst.set_reward) > 0).any(axis=-1)  # something to plan for
+    rec = {
+        "coords": inst.coords,
+        "cost": inst.cost,
+        "set_id": inst.set_id,
+        "set_reward": inst.set_reward,
+        "budget": inst.budget,
+        "teacher_nodes": lab.nodes,
+        "teacher_reward": lab.reward,
+        "teacher_cost": lab.cost,
+        "house_seed": np.asarray(house_seeds, np.int64),
+        "category": np.asarray(categories, np.int32),
+        "source": np.full(len(useful), source, np.int32),
+    }
+    return {k: np.asarray(v)[useful] for k, v in rec.items()}
+
+
+def generate_dataset(
+    out_dir: str | Path,
+    config: DataConfig,
+    shard: tuple[int, int] = (0, 1),
+    progress: bool = True,
+) -> ShardStore:
+    """Generate (or resume, or reuse) a dataset; returns its :class:`ShardStore`.
+
+    ``shard = (i, n)`` makes this process generate only the shards with index % n == i,
+    so several processes or hosts can split the seed range.
+    """
+    preset = get_preset(config.preset)
+    store = ShardStore(out_dir, dataclasses.asdict(config))
+    i_shard, n_proc = shard
+    if not (0 <= i_shard < n_proc):
+        raise ValueError(f"shard must be i/n with 0 <= i < n, got {i_shard}/{n_proc}")
+    todo = [s for s in range(config.n_shards) if s % n_proc == i_shard]
+    todo = [s for s in todo if not store.is_complete(s)]
+    if not todo:
+        return store
+
+    prior = jnp.asarray(default_prior())
+    gen = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)
+    run = jax.jit(explore, static_argnums=4)
+    label = jax.jit(label_virtual_tasks, static_argnums=(3, 4))
+    bar = tqdm(total=len(todo) * config.houses_per_shard, desc="dataset", unit="house",
+               disable=not progress)  # fmt: skip
+    for s in todo:
+        lo = config.seed_start + s * config.houses_per_shard
+        seeds = np.arange(lo, min(lo + config.houses_per_shard, config.seed_start + config.houses))
+        keys = jax.vmap(jax.random.key)(jnp.asarray(seeds))
+        houses = gen(keys, preset)
+        frac = jax.vmap(lambda k: jax.random.uniform(jax.random.fold_in(k, 1)))(keys)
+        lo_b, hi_b = config.explore_budget
+        states = run(keys, houses, preset.budget_m * (lo_b + (hi_b - lo_b) * frac), prior, preset)
+        parts = []
+        for j, seed in enumerate(seeds):
+            state = jax.tree_util.tree_map(lambda a, j=j: a[j], states)
+            task_key = jax.random.fold_in(keys[j], 2)
+            vns_seeds = jnp.arange(config.tasks_per_house, dtype=jnp.int32) + int(seed) * 1000
+            inst, cats, labels = label(task_key, state, vns_seeds, preset, config)
+            parts.append(_records(inst, cats, labels, np.full(len(cats), seed), SOURCE_VIRTUAL))
+            bar.update(1)
+        arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        store.write(s, arrays, {"house_seeds": [int(seeds[0]), int(seeds[-1])]})
+    bar.close()
+    return store
