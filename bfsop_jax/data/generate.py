@@ -1,7 +1,9 @@
 """Teacher-labelled SOP datasets from training houses (SPEC 9.2).
 
-Retrospective virtual tasks (the paper's teacher-student symmetry): an exploration run
-in a training house leaves a *partial* belief map and the receptacles seen on the way.
+Two sources (SPEC 9.2): *on-trajectory* decisions, i.e. every switch to exploitation of
+a BF-SOP agent planning with the VNS teacher, and *retrospective virtual tasks* (the
+paper's teacher-student symmetry): an exploration run in a training house leaves a
+*partial* belief map and the receptacles seen on the way.
 That map is reused to pose many new SOP tasks (other start positions, remaining budgets,
 target categories and subsets of the pending landmarks); the instance is built on the
 partial, optimistic map exactly as the online agent would build it
@@ -27,6 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from bfsop_jax.agents import fbe_action, rollout
+from bfsop_jax.agents.bfsop import bfsop_rollout, vns_planner
 from bfsop_jax.config import EVAL_SEED_START, Preset, get_preset
 from bfsop_jax.data.shards import ShardStore
 from bfsop_jax.env import reset
@@ -69,6 +72,7 @@ class DataConfig:
     keep_landmark: float = 0.8  # chance that a seen landmark is pending in a task
     vns_iters: int = 2000
     vns_no_improve: int = 1000
+    on_trajectory: bool = True  # also record the decisions of a BF-SOP (VNS) episode per house
 
     def __post_init__(self):
         if self.seed_start < 0 or self.seed_start + self.houses > EVAL_SEED_START:
@@ -153,6 +157,36 @@ def label_virtual_tasks(
     return instances, categories, labels
 
 
+def on_trajectory_decisions(
+    key: jax.Array,
+    house,
+    category: jax.Array,
+    prior: jax.Array,
+    preset: Preset,
+    config: DataConfig,
+) -> tuple[SOPInstance, Solution, jax.Array]:
+    """Run one BF-SOP episode with the VNS planner; return every step's decision record.
+
+    Returns ``(instances [S], plans [S], switched [S])`` for S macro steps; the records
+    with ``switched`` are the exploitation decisions (instance on the online map at that
+    moment, the teacher's tour).
+    """  # fmt: skip
+    n_steps = math.ceil(3 * preset.budget_m / (preset.micro_steps * preset.move_step_m))
+    state = reset(key, house, category, preset, prior)
+    planner = vns_planner(seed=0, max_iters=config.vns_iters, max_no_improve=config.vns_no_improve)
+    _, _, decisions, _ = bfsop_rollout(state, planner, preset, n_steps)
+    return decisions.instance, decisions.plan, decisions.switched
+
+
+def _present_category(houses, j: int, key: jax.Array) -> int:
+    """A random target category present in house ``j`` of a batch (host-side)."""
+    cats = np.asarray(houses.object_category[j])
+    present = np.unique(cats[(cats >= 0) & (cats < N_TARGETS)])
+    if len(present) == 0:
+        return 0
+    return int(present[int(jax.random.randint(key, (), 0, len(present)))])
+
+
 def _records(instances, categories, labels, house_seeds, source) -> dict[str, np.ndarray]:
     inst = jax.device_get(instances)
     lab = jax.device_get(labels)
@@ -198,6 +232,7 @@ def generate_dataset(
     gen = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)
     run = jax.jit(explore, static_argnums=4)
     label = jax.jit(label_virtual_tasks, static_argnums=(3, 4))
+    decide = jax.jit(on_trajectory_decisions, static_argnums=(4, 5))
     bar = tqdm(total=len(todo) * config.houses_per_shard, desc="dataset", unit="house",
                disable=not progress)  # fmt: skip
     for s in todo:
@@ -215,6 +250,17 @@ def generate_dataset(
             vns_seeds = jnp.arange(config.tasks_per_house, dtype=jnp.int32) + int(seed) * 1000
             inst, cats, labels = label(task_key, state, vns_seeds, preset, config)
             parts.append(_records(inst, cats, labels, np.full(len(cats), seed), SOURCE_VIRTUAL))
+            if config.on_trajectory:
+                cat = _present_category(houses, j, jax.random.fold_in(keys[j], 3))
+                inst, plans, switched = decide(keys[j], state.house, cat, prior, preset, config)
+                sel = np.asarray(switched)
+                inst, plans = jax.tree_util.tree_map(
+                    lambda a, sel=sel: np.asarray(a)[sel], (inst, plans)
+                )
+                n = int(sel.sum())
+                parts.append(
+                    _records(inst, np.full(n, cat), plans, np.full(n, seed), SOURCE_ON_TRAJECTORY)
+                )
             bar.update(1)
         arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         store.write(s, arrays, {"house_seeds": [int(seeds[0]), int(seeds[-1])]})

@@ -1,0 +1,59 @@
+"""BF-SOP strategy switcher: tours planned by the VNS teacher, greedy plan estimate."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bfsop_jax.agents.bfsop import bfsop_rollout, greedy_estimate, vns_planner
+from bfsop_jax.config import get_preset
+from bfsop_jax.env import reset
+from bfsop_jax.sop.types import SOPInstance, evaluate, validate
+from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS
+from bfsop_jax.world.generator import generate_house
+
+SMOKE = get_preset("smoke")
+
+
+def test_greedy_estimate_on_a_line():
+    xy = jnp.asarray([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [10.0, 0.0]])
+    reward = jnp.asarray([1.0, 1.0, 1.0, 5.0])
+    valid = jnp.asarray([True, True, True, False])
+    r, c = greedy_estimate(xy, reward, valid, jnp.zeros(2), jnp.asarray(100.0))
+    assert float(r) == pytest.approx(3.0)
+    assert float(c) == pytest.approx(3.0 * 1.3, rel=1e-5)  # straight line x detour
+    r, c = greedy_estimate(xy, reward, valid, jnp.zeros(2), jnp.asarray(2.7))
+    assert float(r) == pytest.approx(2.0) and float(c) <= 2.7
+
+
+def test_bfsop_episode_switches_and_plans_feasible_tours():
+    house = jax.jit(generate_house, static_argnums=1)(jax.random.key(7), SMOKE)
+    prior = jnp.full((N_CATEGORIES, N_TARGETS), 0.5)  # every receptacle is a landmark
+    state = jax.jit(reset, static_argnums=3)(jax.random.key(7), house, 8, SMOKE, prior)
+    n = math.ceil(2 * SMOKE.budget_m / (SMOKE.micro_steps * SMOKE.move_step_m))
+    planner = vns_planner(0, max_iters=100, max_no_improve=50)
+    run = jax.jit(lambda s: bfsop_rollout(s, planner, SMOKE, n))
+    final, memory, decisions, poses = run(state)
+
+    assert int(memory.switches) >= 1
+    assert float(final.path_length) <= float(final.budget) + 1e-5
+    assert np.all(np.asarray(final.landmarks_seen)[np.asarray(memory.retired)])
+    switched = np.nonzero(np.asarray(decisions.switched))[0]
+    assert len(switched) >= 1
+    for t in switched:
+        inst = jax.tree_util.tree_map(lambda a, t=t: np.asarray(a)[t], decisions.instance)
+        inst = SOPInstance.create(
+            inst.cost, inst.set_id, inst.set_reward, 0, -1, inst.budget, inst.coords
+        )
+        validate(inst)
+        nodes = [int(v) for v in np.asarray(decisions.plan.nodes[t]) if v >= 0]
+        reward, cost, feasible = evaluate(inst, nodes)
+        assert feasible and nodes[0] == 0
+    touring = np.asarray(decisions.touring)
+    assert touring.any() and (~touring).any()
+    moved = np.isfinite(np.asarray(poses)[..., 0])
+    assert moved.any()
