@@ -43,6 +43,21 @@ def _save(fig: plt.Figure, path: str | Path | None) -> None:
         fig.savefig(path, dpi=fig.dpi, bbox_inches="tight")
 
 
+def _finish_map(fig, ax, handles, extent, title, path) -> plt.Figure:
+    """Legend outside on the right, metric axes on the map's extent, optional title/PNG."""
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7,
+              frameon=False)  # fmt: skip
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if title is not None:
+        ax.set_title(title)
+    _save(fig, path)
+    return fig
+
+
 def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     """Square dilation of a boolean image by ``radius`` cells (NumPy only)."""
     h, w = mask.shape
@@ -138,17 +153,7 @@ def plot_house(
         for k, n in enumerate(C.ROOM_TYPE_NAMES)
     ]
     room_handles.append(Patch(facecolor="#8b6f47", edgecolor="#3b2f1e", label="furniture"))
-    ax.legend(handles=room_handles + target_handles, loc="upper left", bbox_to_anchor=(1.01, 1.0),
-              fontsize=7, frameon=False)  # fmt: skip
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    if title is not None:
-        ax.set_title(title)
-    _save(fig, path)
-    return fig
+    return _finish_map(fig, ax, room_handles + target_handles, extent, title, path)
 
 
 def _belief_image(belief: np.ndarray, known: float) -> np.ndarray:
@@ -226,17 +231,7 @@ def plot_belief(
         Patch(facecolor="black", label="known occupied"),
         Patch(facecolor=(0.72, 0.72, 0.72), label="unknown"),
     ]
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7,
-              frameon=False)  # fmt: skip
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    if title is not None:
-        ax.set_title(title)
-    _save(fig, path)
-    return fig
+    return _finish_map(fig, ax, handles, extent, title, path)
 
 
 def plot_trajectory(
