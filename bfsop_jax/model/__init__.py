@@ -1,0 +1,30 @@
+"""The Strategic Transformer: features, the network (Flax NNX) and SOP decoding (SPEC 9.1)."""
+
+from bfsop_jax.model.decode import (
+    DecodeTrace,
+    TeacherForcing,
+    allowed_next,
+    decode,
+    greedy_decode,
+    plan_value,
+    sample_decode,
+    teacher_forced_logits,
+)
+from bfsop_jax.model.features import NodeFeatures, node_features, symmetric_features
+from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
+
+__all__ = [
+    "DecodeTrace",
+    "ModelConfig",
+    "NodeFeatures",
+    "StrategicTransformer",
+    "TeacherForcing",
+    "allowed_next",
+    "decode",
+    "greedy_decode",
+    "node_features",
+    "plan_value",
+    "sample_decode",
+    "symmetric_features",
+    "teacher_forced_logits",
+]

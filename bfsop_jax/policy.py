@@ -1,0 +1,342 @@
+"""The Strategic Transformer as an SOP planner: ``StrategicPolicy.load(dir).plan(instance)``.
+
+Inference (SPEC 9.4): one jitted program runs the encoder, greedy decoding, the bounded
+SOP 2-opt (:func:`bfsop_jax.sop.two_opt`, at most 100 reversals) and the budget gate
+(:func:`bfsop_jax.sop.budget_gate`), for one instance or a batch. Instances smaller than
+the model's capacity (N nodes, K sets, from the run's ``config.json``) are padded with
+padding nodes (``set_id`` -1, unreachable) and empty zero-reward sets, so ``.sop`` files
+and hand-made instances work too; larger ones are refused.
+
+Options, each measurable on its own:
+
+* ``two_opt=False`` (or :meth:`StrategicPolicy.plan_without_two_opt`): decoding plus the
+  budget gate only;
+* ``augment=True``: decode the 8 symmetries of the normalised coordinates (flips and quarter
+  turns; costs unchanged) and keep the best plan after 2-opt and the gate;
+* ``best_of=k`` (k > 1): add k plans sampled from the decoder to the greedy one.
+
+"Best" means the largest reward, then the smallest cost. Each (batch size, options)
+combination compiles once; later calls with the same shapes reuse the program.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from bfsop_jax.model.decode import DecodeTrace, decode
+from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
+from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
+from bfsop_jax.sop.two_opt import budget_gate
+from bfsop_jax.sop.two_opt import two_opt as sop_two_opt
+from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
+from bfsop_jax.training import checkpoint as ckpt
+
+__all__ = ["DEMO_POLICY_DIR", "TWO_OPT_ITERS", "StrategicPolicy"]
+
+# The pretrained demo model shipped with the package (config.json + model/).
+DEMO_POLICY_DIR = Path(__file__).resolve().parent / "assets" / "policy_demo"
+TWO_OPT_ITERS = 100  # bounded 2-opt (SPEC 8.5)
+
+
+class StrategicPolicy:
+    """A trained Strategic Transformer with its decoding, 2-opt and budget gate."""
+
+    def __init__(self, model: StrategicTransformer, num_nodes: int, num_sets: int):
+        """Wrap ``model`` for instances of at most ``num_nodes`` nodes and ``num_sets`` sets."""
+        if num_nodes < 1 or num_sets < 1:
+            raise ValueError(f"capacity must be positive, got N={num_nodes}, K={num_sets}")
+        self.config: ModelConfig = model.config
+        self.num_nodes = int(num_nodes)
+        self.num_sets = int(num_sets)
+        self._graphdef, params = nnx.split(model, nnx.Param)
+        self._params = jax.device_put(params, jax.devices()[0])
+
+    # -- loading -------------------------------------------------------------------------
+    @classmethod
+    def load(
+        cls, run_dir: str | os.PathLike | None = None, checkpoint: str = "auto"
+    ) -> StrategicPolicy:
+        """Rebuild the model of a run directory (or the shipped demo model).
+
+        Args:
+            run_dir: a training run directory (``config.json`` plus ``model/`` and/or
+                ``checkpoints/``); None loads :data:`DEMO_POLICY_DIR`.
+            checkpoint: ``"model"`` (the replica chosen at the end of training),
+                ``"latest"`` (the last epoch checkpoint, its best replica so far) or
+                ``"auto"`` (``model`` if present, else ``latest``).
+
+        Raises:
+            ValueError: missing directory, config or checkpoint, or unreadable files.
+        """
+        if run_dir is None:
+            if not (DEMO_POLICY_DIR / ckpt.CONFIG_FILE).is_file():
+                raise ValueError(
+                    "the pretrained demo policy is not installed (bfsop_jax/assets/"
+                    "policy_demo has no config.json); train one with "
+                    "`python -m experiments.distill` and pass its run directory"
+                )
+            run_dir = DEMO_POLICY_DIR
+        run_dir = Path(run_dir)
+        if checkpoint not in ("auto", "model", "latest"):
+            raise ValueError(f"checkpoint must be 'auto', 'model' or 'latest', got {checkpoint!r}")
+        config = ckpt.read_config(run_dir)
+        try:
+            model_config = ModelConfig.from_dict(config["run"]["model"])
+            num_nodes = int(config["dataset"]["num_nodes"])
+            num_sets = int(config["dataset"]["num_sets"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(
+                f"{run_dir / ckpt.CONFIG_FILE} lacks the model description: {err}"
+            ) from None
+        abstract = nnx.eval_shape(lambda: StrategicTransformer(model_config, rngs=nnx.Rngs(0)))
+        graphdef, target = nnx.split(abstract, nnx.Param)
+        if checkpoint == "auto":
+            checkpoint = "model" if (run_dir / ckpt.MODEL_DIR).is_dir() else "latest"
+        if checkpoint == "model":
+            params = ckpt.load_model(run_dir, target)
+        else:
+            params = _latest_params(run_dir, config, model_config, target)
+        return cls(nnx.merge(graphdef, params), num_nodes, num_sets)
+
+    # -- planning ------------------------------------------------------------------------
+    def plan(
+        self,
+        instance: SOPInstance,
+        two_opt: bool = True,
+        augment: bool = False,
+        best_of: int = 1,
+        key: jax.Array | None = None,
+        temperature: float = 1.0,
+    ) -> Solution:
+        """Plan one instance (``set_id`` [n]) or a batch (``set_id`` [B, n]).
+
+        Args:
+            instance: n <= N nodes and k <= K sets (padded up to the model's N, K).
+            two_opt: refine with the bounded SOP 2-opt before the budget gate.
+            augment: also decode the 8 coordinate symmetries, keep the best.
+            best_of: k > 1 adds k sampled plans to the greedy one, keeps the best.
+            key: PRNG key for sampling (default ``jax.random.key(0)``: deterministic).
+            temperature: softmax temperature of the sampled plans.
+
+        Returns:
+            A feasible :class:`Solution` (``nodes`` [T] or [B, T] with T = plan_length(k),
+            -1 padded; reward and cost exact in float32 for the given instance).
+        """
+        if not isinstance(best_of, int) or best_of < 1:
+            raise ValueError(f"best_of must be a positive int, got {best_of!r}")
+        if not temperature > 0:
+            raise ValueError(f"temperature must be positive, got {temperature}")
+        padded, single, k = self._prepare(instance)
+        key = jax.random.key(0) if key is None else key
+        sol = _plan_jit(
+            self._params,
+            padded,
+            key,
+            jnp.float32(temperature),
+            graphdef=self._graphdef,
+            use_two_opt=bool(two_opt),
+            augment=bool(augment),
+            best_of=best_of,
+        )
+        return _unpad(sol, k, single)
+
+    def plan_without_two_opt(self, instance: SOPInstance, **options: Any) -> Solution:
+        """:meth:`plan` with ``two_opt=False`` (decoding and budget gate only; Table III)."""
+        return self.plan(instance, two_opt=False, **options)
+
+    def trace(self, instance: SOPInstance) -> DecodeTrace:
+        """Greedy decoding with the per-step distributions (before 2-opt and the gate).
+
+        ``probs`` and ``allowed`` are over the model's N padded nodes plus END (index N).
+        """
+        padded, single, k = self._prepare(instance)
+        out = _trace_jit(self._params, padded, graphdef=self._graphdef)
+        out = out.replace(solution=_unpad(out.solution, k, False))
+        return jax.tree_util.tree_map(lambda x: x[0], out) if single else out
+
+    # -- internals -----------------------------------------------------------------------
+    def _prepare(self, instance: SOPInstance) -> tuple[SOPInstance, bool, int]:
+        inst = _as_numpy(instance)
+        single = inst.set_id.ndim == 1
+        if single:
+            inst = jax.tree_util.tree_map(lambda x: x[None], inst)
+        _check_batch(inst)
+        n, k = inst.set_id.shape[1], inst.set_reward.shape[1]
+        if n > self.num_nodes or k > self.num_sets:
+            raise ValueError(
+                f"instance has {n} nodes and {k} sets; this model plans at most "
+                f"{self.num_nodes} nodes and {self.num_sets} sets"
+            )
+        padded = _pad(inst, self.num_nodes, self.num_sets)
+        return jax.device_put(padded, jax.devices()[0]), single, k
+
+
+@functools.partial(jax.jit, static_argnames=("graphdef",))
+def _trace_jit(params: Any, inst: SOPInstance, *, graphdef: nnx.GraphDef) -> DecodeTrace:
+    return decode(nnx.merge(graphdef, params), inst)
+
+
+@functools.partial(jax.jit, static_argnames=("graphdef", "use_two_opt", "augment", "best_of"))
+def _plan_jit(params, inst, key, temperature, *, graphdef, use_two_opt, augment, best_of):
+    # compiled once per (model graph, batch size, options); the body is looked up at trace
+    # time, which lets tests count traces
+    return _plan_program(graphdef, params, inst, key, temperature, use_two_opt, augment, best_of)
+
+
+def _plan_program(
+    graphdef: nnx.GraphDef,
+    params: Any,
+    inst: SOPInstance,
+    key: jax.Array,
+    temperature: jax.Array,
+    use_two_opt: bool,
+    augment: bool,
+    best_of: int,
+) -> Solution:
+    """Encode, decode (greedy, symmetries, samples), 2-opt, gate, keep the best; batch B."""
+    model = nnx.merge(graphdef, params)
+    b = inst.set_id.shape[0]
+    features = node_features(inst)
+    views = 1
+    if augment:  # [8, B, ...] -> [8B, ...], symmetry-major
+        views = NUM_SYMMETRIES
+        features = jax.tree_util.tree_map(_flatten2, symmetric_features(features))
+    cache = model.prepare(features, _tile(inst.start, views))
+    draws = 1 + (best_of if best_of > 1 else 0)  # the greedy plan, then samples
+    cache = jax.tree_util.tree_map(lambda x: _tile(x, draws), cache)
+    every = jax.tree_util.tree_map(lambda x: _tile(x, views * draws), inst)
+    greedy = jnp.arange(draws * views * b) < views * b
+    trace = decode(model, every, key, temperature, greedy, cache=cache)
+    sol = trace.solution
+    if use_two_opt:
+        sol = sop_two_opt(every, sol, max_iters=TWO_OPT_ITERS)
+    sol = budget_gate(every, sol)
+    return _best(sol, draws * views, b)
+
+
+def _latest_params(
+    run_dir: Path, config: dict[str, Any], model_config: ModelConfig, target: Any
+) -> Any:
+    """Parameters of the best replica in the last epoch checkpoint of a run."""
+    from bfsop_jax.training.bc import init_states
+    from bfsop_jax.training.config import TrainConfig
+
+    replicas = config.get("replicas") or []
+    if not replicas:
+        raise ValueError(f"{run_dir / ckpt.CONFIG_FILE} lists no replicas")
+    train_config = TrainConfig.from_dict(config["run"]["train"])
+    states = jax.eval_shape(
+        lambda: init_states(
+            model_config, train_config, [r["seed"] for r in replicas], [r["lr"] for r in replicas]
+        )[1]
+    )
+    with ckpt.CheckpointStore(run_dir, read_only=True) as store:
+        if store.latest_epoch() is None:
+            raise ValueError(f"no checkpoint in {run_dir} (neither model/ nor an epoch checkpoint)")
+        state, meta = store.restore(states)
+    best = int(meta.get("best_replica", 0))
+    return jax.tree_util.tree_map(lambda x: x[best], state.params)
+
+
+def _as_numpy(instance: SOPInstance) -> SOPInstance:
+    if not isinstance(instance, SOPInstance):
+        raise ValueError(f"plan needs an SOPInstance, got {type(instance).__name__}")
+    inst = instance.to_numpy()
+    if inst.set_id.ndim not in (1, 2):
+        raise ValueError(f"set_id must be [N] or [B, N], got shape {inst.set_id.shape}")
+    return inst
+
+
+def _check_batch(inst: SOPInstance) -> None:
+    """Vectorised checks of a batch [B] of instances (shapes and values)."""
+    b, n = inst.set_id.shape
+    k = inst.set_reward.shape[-1] if inst.set_reward.ndim == 2 else -1
+    shapes = {
+        "cost": (b, n, n),
+        "set_reward": (b, k),
+        "start": (b,),
+        "end": (b,),
+        "budget": (b,),
+        "coords": (b, n, 2),
+    }
+    for name, shape in shapes.items():
+        if np.shape(getattr(inst, name)) != shape:
+            raise ValueError(f"{name} must have shape {shape}, got {np.shape(getattr(inst, name))}")
+    if b == 0 or n == 0 or k < 1:
+        raise ValueError(f"empty instance batch (B={b}, N={n}, K={k})")
+    if np.isnan(inst.cost).any() or (inst.cost < 0).any():
+        raise ValueError("cost contains NaN or negative entries")
+    if np.isnan(inst.budget).any() or (inst.budget < 0).any():
+        raise ValueError("budget is NaN or negative")
+    if not np.isfinite(inst.set_reward).all() or (inst.set_reward < 0).any():
+        raise ValueError("set_reward contains NaN, inf or negative entries")
+    if not np.isfinite(inst.coords).all():
+        raise ValueError("coords contain NaN or inf")
+    if ((inst.set_id < -1) | (inst.set_id >= k)).any():
+        raise ValueError(f"set_id outside [-1, {k})")
+    start = inst.start.astype(np.int64)
+    if ((start < 0) | (start >= n)).any() or (inst.set_id[np.arange(b), start % n] < 0).any():
+        raise ValueError("start must be a non-padding node")
+    if ((inst.end < -1) | (inst.end >= n)).any():
+        raise ValueError(f"end must be -1 or a node in [0, {n})")
+
+
+def _pad(inst: SOPInstance, num_nodes: int, num_sets: int) -> SOPInstance:
+    """Pad a NumPy batch to N nodes (padding: set -1, unreachable) and K zero-reward sets."""
+    b, n = inst.set_id.shape
+    k = inst.set_reward.shape[1]
+    cost = np.full((b, num_nodes, num_nodes), np.inf, np.float32)
+    cost[:, :n, :n] = inst.cost
+    set_id = np.full((b, num_nodes), -1, np.int32)
+    set_id[:, :n] = inst.set_id
+    reward = np.zeros((b, num_sets), np.float32)
+    reward[:, :k] = inst.set_reward
+    coords = np.zeros((b, num_nodes, 2), np.float32)
+    coords[:, :n] = inst.coords
+    return SOPInstance(
+        cost=cost,
+        set_id=set_id,
+        set_reward=reward,
+        start=inst.start.astype(np.int32),
+        end=inst.end.astype(np.int32),
+        budget=inst.budget.astype(np.float32),
+        coords=coords,
+    )
+
+
+def _unpad(sol: Solution, num_sets: int, single: bool) -> Solution:
+    """Cut the plan slots to the caller's T = plan_length(k) (padding sets are never used)."""
+    sol = sol.replace(nodes=sol.nodes[:, : plan_length(num_sets)])
+    return jax.tree_util.tree_map(lambda x: x[0], sol) if single else sol
+
+
+def _tile(x: jax.Array, times: int) -> jax.Array:
+    """[B, ...] -> [times * B, ...] (copy-major)."""
+    return jnp.broadcast_to(x, (times,) + x.shape).reshape((times * x.shape[0],) + x.shape[1:])
+
+
+def _flatten2(x: jax.Array) -> jax.Array:
+    return x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
+
+
+def _best(sol: Solution, candidates: int, b: int) -> Solution:
+    """Per instance, the candidate with the largest reward, then the smallest cost.
+
+    ``sol`` leaves are [C * B, ...] candidate-major; rewards within a relative 1e-6 of the
+    best count as equal (float32 sums in different orders).
+    """
+    reward = sol.reward.reshape(candidates, b)
+    cost = sol.cost.reshape(candidates, b)
+    top = jnp.max(reward, axis=0)
+    tie = reward >= top - 1e-6 * jnp.maximum(1.0, jnp.abs(top))
+    pick = jnp.argmin(jnp.where(tie, cost, jnp.inf), axis=0)
+    rows = pick * b + jnp.arange(b)
+    return jax.tree_util.tree_map(lambda x: x[rows], sol)

@@ -1,0 +1,194 @@
+"""Orbax checkpoints of a training run, in one small module.
+
+Layout of a run directory::
+
+    run_dir/
+      config.json            model + training config, preset, dataset info, seeds, lrs
+      checkpoints/<epoch>/   one per completed epoch (the last few kept):
+        state/               TrainState of every replica (params, Adam moments, step, lr)
+        meta/                JSON: epoch, per-replica losses, best replica so far
+      model/                 parameters of the chosen replica (what the policy loads)
+
+Saves are synchronous: a save that returns is on disk, and Orbax writes each checkpoint to
+a temporary directory that is renamed only when complete, so an interruption never leaves
+a half-written checkpoint that :meth:`CheckpointStore.latest_epoch` would report.
+Any failure to read a checkpoint (missing files, truncated or garbled data, a tree that
+does not match the model) becomes a ``ValueError`` naming the path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import orbax.checkpoint as ocp
+
+__all__ = [
+    "CheckpointStore",
+    "CONFIG_FILE",
+    "MODEL_DIR",
+    "CHECKPOINT_DIR",
+    "export_policy",
+    "load_model",
+    "read_config",
+    "save_model",
+    "write_config",
+]
+
+CONFIG_FILE = "config.json"
+MODEL_DIR = "model"
+CHECKPOINT_DIR = "checkpoints"
+
+
+class CheckpointStore:
+    """Epoch checkpoints under ``run_dir/checkpoints`` (Orbax ``CheckpointManager``)."""
+
+    def __init__(
+        self, run_dir: str | os.PathLike, max_to_keep: int = 3, read_only: bool = False
+    ) -> None:
+        """``read_only``: open an existing directory to restore (ValueError if missing)."""
+        self.directory = Path(run_dir).absolute() / CHECKPOINT_DIR
+        if read_only and not self.directory.is_dir():
+            raise ValueError(f"no checkpoints in {Path(run_dir)} (missing {CHECKPOINT_DIR}/)")
+        # a reader opens the manager without creating anything (Orbax's read_only mode
+        # only logs warnings about its options)
+        options = ocp.CheckpointManagerOptions(
+            max_to_keep=max_to_keep, create=not read_only, enable_async_checkpointing=False
+        )
+        self._manager = ocp.CheckpointManager(
+            self.directory, options=options, item_names=("state", "meta")
+        )
+
+    def latest_epoch(self) -> int | None:
+        """Last completed epoch on disk (None when there is none)."""
+        return self._manager.latest_step()
+
+    def epochs(self) -> list[int]:
+        return sorted(self._manager.all_steps())
+
+    def save(self, epoch: int, state: Any, meta: dict[str, Any]) -> None:
+        """Write the checkpoint of ``epoch`` (no-op if it exists); returns once on disk."""
+        if epoch in self._manager.all_steps():
+            return
+        self._manager.save(
+            epoch,
+            args=ocp.args.Composite(
+                state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)
+            ),
+            force=True,
+        )
+        self._manager.wait_until_finished()
+
+    def restore(self, target: Any, epoch: int | None = None) -> tuple[Any, dict[str, Any]]:
+        """Read ``(state, meta)`` of ``epoch`` (default: the latest).
+
+        ``target``: a pytree of arrays or ``jax.ShapeDtypeStruct`` with the saved structure
+        (e.g. ``jax.eval_shape`` of the initial state).
+        """
+        if epoch is None:
+            epoch = self.latest_epoch()
+            if epoch is None:
+                raise ValueError(f"no checkpoint in {self.directory}")
+        path = self.directory / str(epoch)
+        try:
+            out = self._manager.restore(
+                epoch,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardRestore(target), meta=ocp.args.JsonRestore()
+                ),
+            )
+        except Exception as err:  # Orbax / TensorStore raise many types for bad data
+            raise ValueError(f"cannot read checkpoint {path}: {_short(err)}") from None
+        return out.state, dict(out.meta)
+
+    def close(self) -> None:
+        self._manager.close()
+
+    def __enter__(self) -> CheckpointStore:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _short(err: BaseException, limit: int = 400) -> str:
+    text = f"{type(err).__name__}: {err}"
+    return text if len(text) <= limit else text[:limit] + " ..."
+
+
+def save_model(run_dir: str | os.PathLike, params: Any) -> Path:
+    """Write the chosen parameters to ``run_dir/model`` (replacing an older copy)."""
+    path = Path(run_dir).absolute() / MODEL_DIR
+    tmp = path.with_name(MODEL_DIR + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    with ocp.StandardCheckpointer() as ckptr:
+        ckptr.save(tmp, params)
+        ckptr.wait_until_finished()
+    # swap in the complete copy: a reader sees the old model or the new one, never half
+    old = path.with_name(MODEL_DIR + ".old")
+    shutil.rmtree(old, ignore_errors=True)
+    if path.exists():
+        path.rename(old)
+    tmp.rename(path)
+    shutil.rmtree(old, ignore_errors=True)
+    return path
+
+
+def load_model(run_dir: str | os.PathLike, target: Any) -> Any:
+    """Read ``run_dir/model`` into the structure of ``target`` (ValueError if unreadable)."""
+    path = Path(run_dir).absolute() / MODEL_DIR
+    if not path.is_dir():
+        raise ValueError(f"no saved model in {Path(run_dir)} (missing {MODEL_DIR}/)")
+    try:
+        with ocp.StandardCheckpointer() as ckptr:
+            return ckptr.restore(path, target)
+    except Exception as err:
+        raise ValueError(f"cannot read model checkpoint {path}: {_short(err)}") from None
+
+
+def write_config(run_dir: str | os.PathLike, config: dict[str, Any]) -> None:
+    """Write ``config.json`` atomically (temporary file, then rename)."""
+    path = Path(run_dir) / CONFIG_FILE
+    tmp = path.with_name(CONFIG_FILE + ".tmp")
+    tmp.write_text(json.dumps(config, indent=1, sort_keys=True))
+    os.replace(tmp, path)
+
+
+def read_config(run_dir: str | os.PathLike) -> dict[str, Any]:
+    """Read ``config.json`` of a run directory (ValueError if missing or not JSON)."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise ValueError(f"run directory {run_dir} does not exist")
+    path = run_dir / CONFIG_FILE
+    if not path.is_file():
+        raise ValueError(f"{run_dir} is not a run directory (missing {CONFIG_FILE})")
+    try:
+        config = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ValueError(f"corrupt {path}: {err}") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"corrupt {path}: expected a JSON object")
+    return config
+
+
+def export_policy(run_dir: str | os.PathLike, dest: str | os.PathLike) -> Path:
+    """Copy what the policy needs (``config.json`` and ``model/``) into ``dest``.
+
+    ``dest`` is replaced. Used to ship a trained model, e.g. into
+    ``bfsop_jax/assets/policy_demo``.
+    """
+    run_dir, dest = Path(run_dir), Path(dest)
+    read_config(run_dir)
+    if not (run_dir / MODEL_DIR).is_dir():
+        raise ValueError(f"no saved model in {run_dir} (missing {MODEL_DIR}/); train it first")
+    tmp = dest.with_name(dest.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    shutil.copy2(run_dir / CONFIG_FILE, tmp / CONFIG_FILE)
+    shutil.copytree(run_dir / MODEL_DIR, tmp / MODEL_DIR)
+    shutil.rmtree(dest, ignore_errors=True)
+    tmp.rename(dest)
+    return dest

@@ -1,0 +1,129 @@
+"""Imitation metrics (JAX) and the per-epoch training log (JSONL, CSV, a PNG curve).
+
+``metrics.jsonl`` and ``metrics.csv`` hold one row per (epoch, replica) with the columns
+:data:`COLUMNS`; ``training_curve.png`` plots train / validation loss and accuracy of
+every replica. A resumed run first drops rows of epochs after its checkpoint, so the log
+always matches the parameters on disk.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from bfsop_jax.model.decode import TeacherForcing
+
+__all__ = ["COLUMNS", "MetricsLog", "imitation_stats", "plot_training_curve"]
+
+COLUMNS = (
+    "epoch",
+    "replica",
+    "seed",
+    "base_lr",
+    "lr",
+    "train_loss",
+    "train_acc",
+    "val_loss",
+    "val_acc",
+    "seconds",
+)
+
+
+def imitation_stats(tf: TeacherForcing, weight: jax.Array | None = None) -> jax.Array:
+    """[3] float32 sums over valid steps: negative log-likelihood, correct arg-max, steps.
+
+    ``weight``: optional [B] per-instance weight (0 drops a padded instance).
+    """
+    valid = tf.valid.astype(jnp.float32)
+    if weight is not None:
+        valid = valid * weight[:, None]
+    log_p = jnp.take_along_axis(tf.log_probs, tf.target[..., None], axis=-1)[..., 0]
+    correct = jnp.argmax(tf.log_probs, axis=-1) == tf.target
+    return jnp.stack(
+        [
+            -jnp.sum(jnp.where(valid > 0, log_p, 0.0) * valid),
+            jnp.sum(correct * valid),
+            jnp.sum(valid),
+        ]
+    )
+
+
+class MetricsLog:
+    """Append-only epoch log of a run directory."""
+
+    def __init__(self, run_dir: str | os.PathLike, keep_until_epoch: int = 0):
+        self.run_dir = Path(run_dir)
+        self.jsonl = self.run_dir / "metrics.jsonl"
+        self.csv = self.run_dir / "metrics.csv"
+        self.png = self.run_dir / "training_curve.png"
+        self.rows: list[dict[str, Any]] = []
+        if self.jsonl.exists():
+            for line in self.jsonl.read_text().splitlines():
+                try:
+                    row = json.loads(line)
+                except json.JSONDecodeError:
+                    continue  # a line cut by an interruption
+                if row.get("epoch", 0) <= keep_until_epoch:
+                    self.rows.append(row)
+        self._rewrite()
+
+    def append(self, rows: list[dict[str, Any]]) -> None:
+        """Add the rows of one epoch and refresh the CSV and the curve."""
+        self.rows.extend(rows)
+        with self.jsonl.open("a") as f:
+            for row in rows:
+                f.write(json.dumps(row) + "\n")
+        self._write_csv()
+        plot_training_curve(self.rows, self.png)
+
+    def _rewrite(self) -> None:
+        tmp = self.jsonl.with_suffix(".jsonl.tmp")
+        tmp.write_text("".join(json.dumps(r) + "\n" for r in self.rows))
+        os.replace(tmp, self.jsonl)
+        self._write_csv()
+
+    def _write_csv(self) -> None:
+        tmp = self.csv.with_suffix(".csv.tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(self.rows)
+        os.replace(tmp, self.csv)
+
+
+def plot_training_curve(rows: list[dict[str, Any]], path: str | os.PathLike) -> None:
+    """Loss and accuracy per epoch, one line per replica (train solid, validation dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not rows:
+        return
+    fig, (ax_loss, ax_acc) = plt.subplots(1, 2, figsize=(10, 4))
+    replicas = sorted({r["replica"] for r in rows})
+    for rep in replicas:
+        mine = sorted((r for r in rows if r["replica"] == rep), key=lambda r: r["epoch"])
+        epochs = [r["epoch"] for r in mine]
+        label = f"seed {mine[0]['seed']}, lr {mine[0]['base_lr']:.0e}" if len(replicas) > 1 else ""
+        for ax, key in ((ax_loss, "loss"), (ax_acc, "acc")):
+            (line,) = ax.plot(epochs, [r[f"train_{key}"] for r in mine], label=f"train {label}")
+            val = [r.get(f"val_{key}") for r in mine]
+            if all(v is not None for v in val):
+                ax.plot(epochs, val, "--", color=line.get_color(), label=f"val {label}")
+    ax_loss.set(xlabel="epoch", ylabel="cross-entropy per step", title="imitation loss")
+    ax_acc.set(xlabel="epoch", ylabel="next-node accuracy", title="teacher agreement")
+    for ax in (ax_loss, ax_acc):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = Path(path).with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
