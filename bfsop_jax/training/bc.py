@@ -57,6 +57,7 @@ __all__ = [
     "instances_from_dataset",
     "make_evaluate",
     "make_optimizer",
+    "lr_factor",
     "make_train_epoch",
     "train",
 ]
@@ -199,18 +200,14 @@ class TrainState:
     lr: Any  # [] float32: base learning rate of this replica
 
 
-def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
+def make_optimizer(grad_clip: float | jax.Array) -> optax.GradientTransformation:
     """Clip by global norm, then Adam's scaling; the learning rate is applied per replica."""
-    return optax.chain(optax.clip_by_global_norm(config.grad_clip), optax.scale_by_adam())
+    return optax.chain(optax.clip_by_global_norm(grad_clip), optax.scale_by_adam())
 
 
-def _lr_factor(config: TrainConfig, steps_per_epoch: int) -> optax.Schedule:
-    return optax.exponential_decay(
-        1.0,
-        transition_steps=steps_per_epoch * config.decay_period,
-        decay_rate=config.lr_decay,
-        staircase=True,
-    )
+def lr_factor(step: Any, decay_steps: Any, lr_decay: Any) -> jax.Array:
+    """Staircase step decay: ``lr_decay ** floor(step / decay_steps)`` (optimiser steps)."""
+    return lr_decay ** jnp.floor(step / decay_steps)
 
 
 def init_states(
@@ -220,7 +217,7 @@ def init_states(
     lrs: Sequence[float],
 ) -> tuple[nnx.GraphDef, TrainState]:
     """Graph definition and stacked initial states of the replicas ``zip(seeds, lrs)``."""
-    tx = make_optimizer(train_config)
+    tx = make_optimizer(train_config.grad_clip)
     graphdef, states = None, []
     for seed, lr in zip(seeds, lrs, strict=True):
         model = StrategicTransformer(model_config, rngs=nnx.Rngs(params=_init_key(seed)))
@@ -265,20 +262,29 @@ def make_train_epoch(
 
     ``states``: :class:`TrainState` with a leading replica axis R; ``data``: dataset dict of
     device arrays (shared by the replicas); ``keys``: [R] shuffle keys. ``stats`` [R, 3]:
-    summed NLL, correct arg-max steps, valid steps over the epoch. The compiled program is
-    cached per (model graph, recipe, D, shapes), so a resumed or repeated run reuses it.
+    summed NLL, correct arg-max steps, valid steps over the epoch. The program is compiled
+    once per (model graph, batch size, D, replica count): the recipe's numbers (clip, decay)
+    are traced values, so runs that differ only in them, or in epochs, share it.
     """
+    batch_size = min(config.batch_size, num_instances)
+    steps = num_instances // batch_size
+    recipe = jnp.asarray(
+        [config.grad_clip, config.lr_decay, steps * config.decay_period], jnp.float32
+    )
     return functools.partial(
-        _train_epoch, graphdef=graphdef, config=config, num_instances=num_instances
+        _train_epoch,
+        recipe=recipe,
+        graphdef=graphdef,
+        batch_size=batch_size,
+        num_instances=num_instances,
     )
 
 
-@functools.partial(jax.jit, static_argnames=("graphdef", "config", "num_instances"))
-def _train_epoch(states, data, keys, *, graphdef, config: TrainConfig, num_instances: int):
-    batch_size = min(config.batch_size, num_instances)
+@functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances"))
+def _train_epoch(states, data, keys, recipe, *, graphdef, batch_size: int, num_instances: int):
     num_batches = num_instances // batch_size
-    tx = make_optimizer(config)
-    factor = _lr_factor(config, num_batches)
+    grad_clip, lr_decay, decay_steps = recipe[0], recipe[1], recipe[2]
+    tx = make_optimizer(grad_clip)
 
     def loss(params, batch):
         stats = _batch_stats(graphdef, params, batch)
@@ -291,7 +297,7 @@ def _train_epoch(states, data, keys, *, graphdef, config: TrainConfig, num_insta
             batch = jax.tree_util.tree_map(lambda x: x[idx], data)
             grads, stats = jax.grad(loss, has_aux=True)(state.params, batch)
             updates, opt_state = tx.update(grads, state.opt_state, state.params)
-            lr = state.lr * factor(state.step)
+            lr = state.lr * lr_factor(state.step, decay_steps, lr_decay)
             updates = jax.tree_util.tree_map(lambda u: -lr * u, updates)
             params = optax.apply_updates(state.params, updates)
             return state.replace(params=params, opt_state=opt_state, step=state.step + 1), stats
@@ -444,8 +450,8 @@ def train(
     evaluate = (
         make_evaluate(graphdef, tcfg.batch_size, info["val"]["instances"]) if val_data else None
     )
-    steps_per_epoch = num_train // min(tcfg.batch_size, num_train)
-    factor = _lr_factor(tcfg, steps_per_epoch)
+    steps = num_train // min(tcfg.batch_size, num_train)  # optimiser steps per epoch
+    decay_steps, decay = steps * tcfg.decay_period, tcfg.lr_decay
 
     store = ckpt.CheckpointStore(run_dir, max_to_keep=tcfg.keep_checkpoints)
     start = 0
@@ -485,7 +491,7 @@ def train(
                         "replica": i,
                         "seed": rep["seed"],
                         "base_lr": rep["lr"],
-                        "lr": rep["lr"] * float(factor(epoch * steps_per_epoch - 1)),
+                        "lr": rep["lr"] * float(lr_factor(epoch * steps - 1, decay_steps, decay)),
                         "train_loss": train_loss,
                         "train_acc": train_acc,
                         "val_loss": val_loss,
