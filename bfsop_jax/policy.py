@@ -38,6 +38,8 @@ from bfsop_jax.sop.two_opt import budget_gate
 from bfsop_jax.sop.two_opt import two_opt as sop_two_opt
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.training import checkpoint as ckpt
+from bfsop_jax.training.bc import init_states
+from bfsop_jax.training.config import TrainConfig
 
 __all__ = ["DEMO_POLICY_DIR", "TWO_OPT_ITERS", "StrategicPolicy"]
 
@@ -152,6 +154,44 @@ class StrategicPolicy:
         """:meth:`plan` with ``two_opt=False`` (decoding and budget gate only; Table III)."""
         return self.plan(instance, two_opt=False, **options)
 
+    def plan_traced(
+        self,
+        instance: SOPInstance,
+        key: jax.Array | None = None,
+        two_opt: bool = True,
+        augment: bool = False,
+        best_of: int = 1,
+        temperature: float | jax.Array = 1.0,
+    ) -> Solution:
+        """:meth:`plan` as a pure JAX function, to call inside the caller's ``jit``/``scan``.
+
+        No host-side checks: ``instance`` must be valid (JAX or NumPy leaves, single or
+        batched, at most N nodes and K sets; smaller ones are padded with ``jnp``).
+        """
+        single = instance.set_id.ndim == 1
+        inst = jax.tree_util.tree_map(jnp.asarray, instance)
+        if single:
+            inst = jax.tree_util.tree_map(lambda x: x[None], inst)
+        n, k = inst.set_id.shape[1], inst.set_reward.shape[1]
+        if n > self.num_nodes or k > self.num_sets:
+            raise ValueError(
+                f"instance has {n} nodes and {k} sets; this model plans at most "
+                f"{self.num_nodes} nodes and {self.num_sets} sets"
+            )
+        inst = _pad(inst, self.num_nodes, self.num_sets, jnp)
+        key = jax.random.key(0) if key is None else key
+        sol = _plan_program(
+            self._graphdef,
+            self._params,
+            inst,
+            key,
+            jnp.asarray(temperature, jnp.float32),
+            bool(two_opt),
+            bool(augment),
+            int(best_of),
+        )
+        return _unpad(sol, k, single)
+
     def trace(self, instance: SOPInstance) -> DecodeTrace:
         """Greedy decoding with the per-step distributions (before 2-opt and the gate).
 
@@ -226,9 +266,6 @@ def _latest_params(
     run_dir: Path, config: dict[str, Any], model_config: ModelConfig, target: Any
 ) -> Any:
     """Parameters of the best replica in the last epoch checkpoint of a run."""
-    from bfsop_jax.training.bc import init_states
-    from bfsop_jax.training.config import TrainConfig
-
     replicas = config.get("replicas") or []
     if not replicas:
         raise ValueError(f"{run_dir / ckpt.CONFIG_FILE} lists no replicas")
@@ -289,26 +326,29 @@ def _check_batch(inst: SOPInstance) -> None:
         raise ValueError(f"end must be -1 or a node in [0, {n})")
 
 
-def _pad(inst: SOPInstance, num_nodes: int, num_sets: int) -> SOPInstance:
-    """Pad a NumPy batch to N nodes (padding: set -1, unreachable) and K zero-reward sets."""
+def _pad(inst: SOPInstance, num_nodes: int, num_sets: int, xp: Any = np) -> SOPInstance:
+    """Pad a batch to N nodes (padding: set -1, unreachable) and K zero-reward sets.
+
+    ``xp``: ``numpy`` on the host, ``jax.numpy`` inside a traced program.
+    """
     b, n = inst.set_id.shape
     k = inst.set_reward.shape[1]
-    cost = np.full((b, num_nodes, num_nodes), np.inf, np.float32)
-    cost[:, :n, :n] = inst.cost
-    set_id = np.full((b, num_nodes), -1, np.int32)
-    set_id[:, :n] = inst.set_id
-    reward = np.zeros((b, num_sets), np.float32)
-    reward[:, :k] = inst.set_reward
-    coords = np.zeros((b, num_nodes, 2), np.float32)
-    coords[:, :n] = inst.coords
+    extra_n, extra_k = num_nodes - n, num_sets - k
+    cost = xp.pad(
+        xp.asarray(inst.cost, xp.float32),
+        ((0, 0), (0, extra_n), (0, extra_n)),
+        constant_values=np.inf,
+    )
     return SOPInstance(
         cost=cost,
-        set_id=set_id,
-        set_reward=reward,
-        start=inst.start.astype(np.int32),
-        end=inst.end.astype(np.int32),
-        budget=inst.budget.astype(np.float32),
-        coords=coords,
+        set_id=xp.pad(
+            xp.asarray(inst.set_id, xp.int32), ((0, 0), (0, extra_n)), constant_values=-1
+        ),
+        set_reward=xp.pad(xp.asarray(inst.set_reward, xp.float32), ((0, 0), (0, extra_k))),
+        start=xp.asarray(inst.start, xp.int32),
+        end=xp.asarray(inst.end, xp.int32),
+        budget=xp.asarray(inst.budget, xp.float32),
+        coords=xp.pad(xp.asarray(inst.coords, xp.float32), ((0, 0), (0, extra_n), (0, 0))),
     )
 
 

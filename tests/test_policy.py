@@ -63,6 +63,8 @@ def assert_matches_evaluate(inst: SOPInstance, sol) -> None:
 
 
 # -- loading ---------------------------------------------------------------------------------
+# Orbax leaves a failed asynchronous read behind; the error we check is raised all the same
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 def test_load_errors(tmp_path, run_dir, monkeypatch):
     with pytest.raises(ValueError, match="does not exist"):
         StrategicPolicy.load(tmp_path / "nowhere")
@@ -201,3 +203,13 @@ def test_trace_has_distributions(policy):
     assert np.isclose(first.sum(), 1.0, atol=1e-5) and first[0] == 0.0  # start masked
     assert (first[19:NODES] == 0).all()  # padding nodes masked
     assert jnp.asarray(trace.solution.nodes).shape == (plan_length(7),)
+
+
+def test_plan_traced_inside_jit(policy):
+    """The pure variant runs inside a caller's jit (here with a smaller instance, padded
+    with jnp) and gives the same plan as ``plan``."""
+    insts = instances(range(50, 58))
+    batch = stack(insts)
+    traced = jax.jit(lambda inst: policy.plan_traced(inst))(batch)
+    np.testing.assert_array_equal(traced.nodes, policy.plan(batch).nodes)
+    np.testing.assert_allclose(traced.cost, policy.plan(batch).cost, rtol=1e-6)
