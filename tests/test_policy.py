@@ -159,6 +159,7 @@ def test_single_instances_compile_once(policy, monkeypatch):
     counted = chex.assert_max_traces(policy_module._plan_program, n=1)
     monkeypatch.setattr(policy_module, "_plan_program", counted)
     chex.clear_trace_counter()
+    compiled = policy_module._plan_jit._cache_size()
     small = random_instance(3, num_sets=4, viewpoints=2)  # 9 nodes, 5 sets: padded
     plans = []
     for inst in instances(range(20, 23)) + [small]:
@@ -166,7 +167,9 @@ def test_single_instances_compile_once(policy, monkeypatch):
         assert sol.nodes.shape == (plan_length(inst.num_sets),)
         assert_matches_evaluate(inst, sol)
         plans.append(sol)
-    # the batch of one gives the plan of the batched call
+    assert policy_module._plan_jit._cache_size() <= compiled + 1
+    monkeypatch.undo()
+    # a single instance gets the plan it gets in a batch
     batch_plan = policy.plan(stack(instances(range(20, 23)) + instances([20]) * 5))
     np.testing.assert_array_equal(batch_plan.nodes[0], plans[0].nodes)
 
@@ -213,3 +216,13 @@ def test_plan_traced_inside_jit(policy):
     traced = jax.jit(lambda inst: policy.plan_traced(inst))(batch)
     np.testing.assert_array_equal(traced.nodes, policy.plan(batch).nodes)
     np.testing.assert_allclose(traced.cost, policy.plan(batch).cost, rtol=1e-6)
+
+
+def test_nothing_to_visit_gives_the_empty_plan(policy):
+    """No landmark left (every set masked) or no budget: the start-only plan, no crash."""
+    empty = random_instance(60, num_sets=6, viewpoints=3, masked_sets=6)
+    broke = instances([61])[0].replace(budget=np.float32(0.0))
+    for inst in (empty, broke):
+        sol = policy.plan(inst)
+        assert [n for n in np.asarray(sol.nodes) if n >= 0] == [0]
+        assert float(sol.reward) == 0.0 and float(sol.cost) == 0.0
