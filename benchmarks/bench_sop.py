@@ -8,7 +8,8 @@ Sections (each can be limited or skipped):
    mean gap to the best known reward, VNS time next to the published VNS-SOP time;
 3. random navigation-like instances (15 sets x 5 viewpoints, open path, about half the
    sets fit): VNS time and optimality against the exact solver, then the latency of the
-   JAX 2-opt + budget gate for batches of 1 and 64 (compilation timed apart).
+   JAX 2-opt + budget gate for batches of 1 and 64 (compilation timed apart);
+4. small random instances (6-10 sets): how often the VNS finds the exact optimum.
 
 The benchmark data (``sop/`` of the developers' shared folder) is looked up in
 ``$BFSOP_SHARED/sop`` or ``../shared/sop`` next to the repository; pass ``--sop-dir``
@@ -152,6 +153,34 @@ def bench_random(count: int, vns_kwargs, repeats: int) -> None:
     _bench_two_opt(insts, repeats)
 
 
+def bench_small(count: int, vns_kwargs) -> None:
+    """VNS against the exact optimum on small random instances (6-10 sets, open/closed)."""
+    rng = np.random.default_rng(7)
+    hits, gaps, closed_hits, closed_n = 0, [], 0, 0
+    for s in tqdm(range(count), desc="small random", unit="inst"):
+        closed = s % 2 == 1
+        inst = random_instance(
+            5000 + s,
+            num_sets=int(rng.integers(6, 11)),
+            viewpoints=int(rng.integers(2, 5)),
+            closed=closed,
+            budget_scale=float(rng.uniform(0.2, 0.6)),
+        )
+        sol = solve_vns(inst, seed=s, **vns_kwargs)
+        best = float(solve_exact(inst, reference=sol).reward)
+        hit = abs(float(sol.reward) - best) <= 1e-6
+        hits += hit
+        closed_hits += hit and closed
+        closed_n += closed
+        gaps.append(_gap(float(sol.reward), best))
+    print(f"\n[4] small random instances (6-10 sets x 2-4 viewpoints, half closed): {count}")
+    print(
+        f"    VNS equals the exact optimum on {hits}/{count} = {100 * hits / count:.1f}% "
+        f"(closed tours {closed_hits}/{closed_n}); mean gap {statistics.fmean(gaps):.3f}%, "
+        f"max {max(gaps):.2f}%"
+    )
+
+
 def _scrambled(inst, rng) -> tuple[np.ndarray, float]:
     """Greedy plan with its visiting order shuffled: something for 2-opt to repair."""
     nodes = solve_greedy(inst).node_list()
@@ -204,6 +233,7 @@ def main() -> None:
     parser.add_argument("--best-known", type=int, default=40, help="literature instances")
     parser.add_argument("--max-sets", type=int, default=50)
     parser.add_argument("--random", type=int, default=20, help="navigation-like instances")
+    parser.add_argument("--small", type=int, default=100, help="small instances vs exact")
     parser.add_argument("--repeats", type=int, default=20, help="timing repeats for 2-opt")
     parser.add_argument("--time-limit", type=float, default=None, help="VNS seconds per instance")
     args = parser.parse_args()
@@ -222,6 +252,8 @@ def main() -> None:
         bench_best_known(sop, args.best_known, args.max_sets, vns_kwargs)
     if args.random:
         bench_random(args.random, vns_kwargs, args.repeats)
+    if args.small:
+        bench_small(args.small, vns_kwargs)
 
 
 if __name__ == "__main__":
