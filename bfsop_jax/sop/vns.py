@@ -629,15 +629,21 @@ def _local_search(
     rng: np.random.Generator,
     trades: bool = False,
     reversals: bool = False,
+    order_only: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Random first-improvement local search ``which`` on a batch, n^2 trials each.
 
     With ``trades``, as in the published code, a replacement is also taken when it
     shortens the tour while lowering the reward; the set it removes may not come back
     during the same search, which rules out trade / re-insert cycles.
+
+    With ``order_only`` only the moves that keep the visited sets (relocate, swap,
+    reversal) are tried, the budget is ignored and the search runs to a local minimum of
+    the tour cost (used to repair a tour that is slightly over budget).
     """
     w = perm.shape[0]
-    trials_left = np.full(w, float(view.num_sets) ** 2)
+    trials_left = np.full(w, np.inf if order_only else float(view.num_sets) ** 2)
+    budget = np.inf if order_only else view.budget
     active = np.ones(w, bool)
     banned = np.zeros((w, view.num_sets), bool)
     eps_r, eps_l = _tolerances(view)
@@ -648,7 +654,7 @@ def _local_search(
         moves = _neighbourhood(view, perm[idx], m[idx], t, which, reversals)
         for mv in moves:
             if mv.kind in ("insert", "replace"):
-                mv.valid = mv.valid & ~banned[idx, None, :]
+                mv.valid = mv.valid & ~banned[idx, None, :] & (not order_only)
         cost = np.concatenate([mv.cost.reshape(len(idx), -1) for mv in moves], axis=1)
         gain = np.concatenate([mv.gain.reshape(len(idx), -1) for mv in moves], axis=1)
         valid = np.concatenate([mv.valid.reshape(len(idx), -1) for mv in moves], axis=1)
@@ -656,7 +662,7 @@ def _local_search(
             [np.full(mv.cost[0].size, trades and mv.kind == "replace") for mv in moves]
         )
         shorter = cost < t.length[:, None] - eps_l
-        better = valid & (cost <= view.budget)
+        better = valid & (cost <= budget)
         better &= (gain > eps_r) | (((np.abs(gain) <= eps_r) | trade[None, :]) & shorter)
         n_valid = valid.sum(axis=1)
         n_better = better.sum(axis=1)
@@ -679,6 +685,89 @@ def _local_search(
                 banned[wi, perm[wi][a]] = True
             perm[wi], m[wi] = _apply(perm[wi], int(m[wi]), mv.kind, a, b)
     return perm, m
+
+
+def _tighten(
+    view: SetView, perm: np.ndarray, m: int, rng: np.random.Generator
+) -> tuple[np.ndarray, int]:
+    """Shorten the tour of one solution with order-only moves until no move helps."""
+    batch, ms = perm[None].copy(), np.array([m])
+    length = float(_score(view, batch, ms)[1][0])
+    while True:
+        for which in (1, 2):
+            batch, ms = _local_search(view, batch, ms, which, rng, reversals=True, order_only=True)
+        new = float(_score(view, batch, ms)[1][0])
+        if not new < length - _tolerances(view)[1]:
+            return batch[0], int(ms[0])
+        length = new
+
+
+def _shortest_order(
+    view: SetView, perm: np.ndarray, m: int, rng: np.random.Generator, restarts: int
+) -> tuple[np.ndarray, int, float]:
+    """A short tour through the visited sets of ``perm``: order-only local search from the
+    given order and from ``restarts`` random orders of the same sets; the shortest wins."""
+    starts = [perm]
+    for _ in range(restarts):
+        starts.append(np.concatenate([rng.permutation(perm[:m]), perm[m:]]))
+    best = None
+    for order in starts:
+        cand, cm = _tighten(view, order, m, rng)
+        length = float(_score(view, cand[None], np.array([cm]))[1][0])
+        if best is None or length < best[2]:
+            best = (cand, cm, length)
+        if length <= view.budget:
+            break
+    return best
+
+
+def _squeeze(
+    view: SetView,
+    perm: np.ndarray,
+    m: int,
+    rng: np.random.Generator,
+    slack: float,
+    tries: int,
+    restarts: int = 3,
+    ejections: int = 2,
+) -> tuple[np.ndarray, int] | None:
+    """Intensification for tight budgets: a better set selection that needs a new order.
+
+    The budget-respecting neighbourhoods cannot reach a better solution whose tour needs
+    a reordering *and* another set at once. For each of the ``tries`` unvisited sets with
+    the cheapest insertion that overshoots the budget by at most ``slack``: insert it and
+    search a short order for the enlarged selection (order-only local search from the
+    current order and ``restarts`` random ones); if it still does not fit, eject one of
+    the ``ejections`` lower-reward visited sets whose removal shortens that tour most and
+    search again. Returns the first feasible selection with more reward, or None.
+    """
+    t = _tables(view, perm[None], np.array([m]))
+    into, out_of = _gap_tables(view, t)
+    cost = _lowest(into + out_of)[0]  # [L-1, M]
+    unvisited = ~_visited_mask(view, perm[None], np.array([m]))[0]
+    ok = unvisited[None, :] & (np.arange(cost.shape[0])[:, None] <= m)
+    ok &= (cost > view.budget) & (cost <= view.budget * (1.0 + slack))
+    cand = np.where(ok, cost, np.inf)
+    best_gap = np.argmin(cand, axis=0)  # the cheapest gap of every set
+    best = cand[best_gap, np.arange(cand.shape[1])]
+    reward = view.reward
+    for s in np.argsort(best, kind="stable")[:tries]:
+        if not np.isfinite(best[s]):
+            break
+        trial, tm = _apply(perm, m, "insert", int(best_gap[s]), int(s))
+        trial, tm, length = _shortest_order(view, trial, tm, rng, restarts)
+        if length <= view.budget:
+            return trial, tm
+        others = [i for i in range(tm) if trial[i] != s and reward[trial[i]] < reward[s]]
+        if not others:
+            continue
+        ejected = np.stack([np.append(np.delete(trial, i), trial[i]) for i in others])
+        _, shorter = _score(view, ejected, np.full(len(others), tm - 1))
+        for j in np.argsort(shorter, kind="stable")[:ejections]:
+            out, om, length = _shortest_order(view, ejected[j], tm - 1, rng, restarts)
+            if length <= view.budget:
+                return out, om
+    return None
 
 
 def _better(r1: float, c1: float, r0: float, c0: float, view: SetView) -> bool:
@@ -764,6 +853,8 @@ def solve_vns(
     width: int | None = None,
     trades: bool = False,
     reversals: bool = True,
+    squeeze: float = 0.1,
+    squeeze_tries: int = 3,
     return_greedy: bool = False,
 ) -> Solution | tuple[Solution, Solution]:
     """Solve one SOP instance with the VNS teacher (NumPy).
@@ -780,6 +871,10 @@ def solve_vns(
         reversals: add segment reversals (2-opt) of the visited order to local search 2,
             scored with the current nodes (an addition to the published method that
             helps on tight budgets; see docs/sop.md).
+        squeeze: when the search stagnates, insert one more set even though the tour
+            then overshoots the budget by at most this fraction, shorten it with
+            order-only moves and keep it if it fits (0 disables; see docs/sop.md).
+        squeeze_tries: how many of the cheapest overshooting insertions are tried.
         return_greedy: also return the greedy initial solution.
 
     Returns:
@@ -818,5 +913,15 @@ def solve_vns(
             else:
                 k += 1
         it += width
+        if it >= max_iters or it - last >= max_no_improve:
+            # stagnation: before stopping, try the budget-overshoot intensification once
+            # per incumbent; a success resets the no-improvement count
+            squeezed = _squeeze(view, perm, m, rng, squeeze, squeeze_tries) if squeeze else None
+            if squeezed is not None and it < max_iters:
+                perm, m = squeezed
+                best_r, best_c = (float(x[0]) for x in _score(view, perm[None], np.array([m])))
+                last = it
+            elif squeezed is not None:
+                perm, m = squeezed
     sol = _solution(inst, _plan(view, perm, m))
     return (sol, greedy) if return_greedy else sol
