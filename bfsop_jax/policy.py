@@ -108,6 +108,11 @@ class StrategicPolicy:
             params = _latest_params(run_dir, config, model_config, target)
         return cls(nnx.merge(graphdef, params), num_nodes, num_sets)
 
+    @property
+    def model(self) -> StrategicTransformer:
+        """The wrapped model (a fresh module sharing this policy's parameters)."""
+        return nnx.merge(self._graphdef, self._params)
+
     # -- planning ------------------------------------------------------------------------
     def plan(
         self,

@@ -51,6 +51,7 @@ __all__ = [
     "explore",
     "generate_dataset",
     "label_virtual_tasks",
+    "pose_tasks",
     "virtual_tasks",
 ]
 
@@ -207,6 +208,58 @@ def _records(instances, categories, labels, house_seeds, source) -> dict[str, np
     return {k: np.asarray(v)[useful] for k, v in rec.items()}
 
 
+def _explored(seeds, preset: Preset, config: DataConfig, prior, gen, run):
+    """Houses of ``seeds`` and their exploration runs: ``(keys, houses, final states)``."""
+    keys = jax.vmap(jax.random.key)(jnp.asarray(seeds))
+    houses = gen(keys, preset)
+    frac = jax.vmap(lambda k: jax.random.uniform(jax.random.fold_in(k, 1)))(keys)
+    lo_b, hi_b = config.explore_budget
+    states = run(keys, houses, preset.budget_m * (lo_b + (hi_b - lo_b) * frac), prior, preset)
+    return keys, houses, states
+
+
+def pose_tasks(
+    house_seeds: np.ndarray | list[int],
+    config: DataConfig,
+    batch: int = 4,
+    progress: bool = True,
+) -> tuple[SOPInstance, np.ndarray]:
+    """Unlabelled virtual tasks posed on the partial maps of exploration runs (evaluation).
+
+    The same recipe as the training data (exploration run, then ``config.tasks_per_house``
+    tasks on the final partial map), for any house seeds, e.g. held-out evaluation seeds
+    (``>= EVAL_SEED_START``). Instances without a rewarding set are dropped.
+
+    Returns:
+        ``(instances [I], house_seed [I])`` as NumPy arrays.
+    """
+    preset = get_preset(config.preset)
+    seeds = np.asarray(house_seeds, np.int64).ravel()
+    if seeds.size == 0:
+        raise ValueError("pose_tasks needs at least one house seed")
+    prior = jnp.asarray(default_prior())
+    gen = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)
+    run = jax.jit(explore, static_argnums=4)
+    pose = jax.jit(virtual_tasks, static_argnums=(2, 3, 4))
+    parts, owners = [], []
+    bar = tqdm(total=len(seeds), desc="evaluation tasks", unit="house", disable=not progress)
+    for lo in range(0, len(seeds), batch):
+        chunk = seeds[lo : lo + batch]
+        keys, _, states = _explored(chunk, preset, config, prior, gen, run)
+        for j, seed in enumerate(chunk):
+            state = jax.tree_util.tree_map(lambda a, j=j: a[j], states)
+            inst, _ = pose(jax.random.fold_in(keys[j], 2), state, config.tasks_per_house,
+                           preset, config)  # fmt: skip
+            inst = jax.device_get(inst)
+            useful = (np.asarray(inst.set_reward) > 0).any(axis=-1)
+            parts.append(jax.tree_util.tree_map(lambda a, u=useful: np.asarray(a)[u], inst))
+            owners.append(np.full(int(useful.sum()), seed, np.int64))
+            bar.update(1)
+    bar.close()
+    instances = jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
+    return instances, np.concatenate(owners)
+
+
 def generate_dataset(
     out_dir: str | Path,
     config: DataConfig,
@@ -238,11 +291,7 @@ def generate_dataset(
     for s in todo:
         lo = config.seed_start + s * config.houses_per_shard
         seeds = np.arange(lo, min(lo + config.houses_per_shard, config.seed_start + config.houses))
-        keys = jax.vmap(jax.random.key)(jnp.asarray(seeds))
-        houses = gen(keys, preset)
-        frac = jax.vmap(lambda k: jax.random.uniform(jax.random.fold_in(k, 1)))(keys)
-        lo_b, hi_b = config.explore_budget
-        states = run(keys, houses, preset.budget_m * (lo_b + (hi_b - lo_b) * frac), prior, preset)
+        keys, houses, states = _explored(seeds, preset, config, prior, gen, run)
         parts = []
         for j, seed in enumerate(seeds):
             state = jax.tree_util.tree_map(lambda a, j=j: a[j], states)

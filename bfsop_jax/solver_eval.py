@@ -1,0 +1,398 @@
+"""Solver evaluation: the distilled planner against the VNS teacher (SPEC 11, Tables II/III).
+
+Every planner plans the same held-out instances in one run, so the ratios are measured
+side by side:
+
+* the VNS teacher (:func:`bfsop_jax.sop.solve_vns`, reference configuration unless told
+  otherwise), one instance at a time on the host;
+* the greedy-insertion start of the VNS (context: what a one-pass heuristic reaches);
+* the Strategic Transformer through :class:`~bfsop_jax.policy.StrategicPolicy`: greedy
+  decoding without and with the bounded 2-opt (Table III), and each quality extra
+  (coordinate symmetries, best of k samples) reported apart.
+
+Latency is wall-clock per instance after compilation: *single* is the median over calls
+with one instance each (``block_until_ready`` included); *batched* is the time of a batch
+of ``batch_size`` instances divided by its size. The speedup is the VNS single latency over
+the planner's single latency (medians).
+
+:func:`decoder_distance_mass` measures where the decoder's probability goes: the nodes
+allowed at a step are ranked by their cost from the current node and cut into five
+distance quintiles; the node probability mass (END excluded, renormalised) that falls in
+each quintile is averaged over all steps, and over the first step alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from tqdm import tqdm
+
+from bfsop_jax.sop import Solution, SOPInstance, solve_greedy, solve_vns
+
+__all__ = [
+    "PLANNERS",
+    "decoder_distance_mass",
+    "evaluate_solvers",
+    "plot_distance_mass",
+    "plot_tour_comparison",
+    "take",
+    "write_tables",
+]
+
+# name -> StrategicPolicy.plan options; the first two are Table III's pair
+PLANNERS: dict[str, dict[str, Any]] = {
+    "transformer": {"two_opt": False},
+    "transformer+2opt": {"two_opt": True},
+    "transformer+2opt+augment": {"two_opt": True, "augment": True},
+    "transformer+2opt+best_of_8": {"two_opt": True, "best_of": 8},
+}
+
+
+def take(instances: SOPInstance, index: Any) -> SOPInstance:
+    """Instance(s) ``index`` of a NumPy batch (an int gives a single instance)."""
+    return jax.tree_util.tree_map(lambda a: np.asarray(a)[index], instances)
+
+
+def _count(instances: SOPInstance) -> int:
+    return int(np.asarray(instances.set_id).shape[0])
+
+
+def _summary(rewards: list[float], costs: list[float], single_ms: list[float]) -> dict[str, Any]:
+    return {
+        "mean_reward": float(np.mean(rewards)),
+        "mean_cost": float(np.mean(costs)),
+        "latency_ms_single": float(statistics.median(single_ms)),
+        "latency_ms_single_mean": float(np.mean(single_ms)),
+    }
+
+
+def _run_host_solver(fn, instances: SOPInstance, desc: str, progress: bool):
+    sols, times = [], []
+    for i in tqdm(range(_count(instances)), desc=desc, unit="inst", disable=not progress):
+        inst = take(instances, i)
+        t0 = time.perf_counter()
+        sol = fn(inst)
+        times.append(1e3 * (time.perf_counter() - t0))
+        sols.append(sol)
+    return sols, times
+
+
+def _policy_single(policy, instances: SOPInstance, options: dict[str, Any], desc, progress):
+    n = _count(instances)
+    jax.block_until_ready(policy.plan(take(instances, 0), **options))  # compile
+    rewards, costs, times = [], [], []
+    nodes = []
+    for i in tqdm(range(n), desc=desc, unit="inst", disable=not progress):
+        inst = take(instances, i)
+        t0 = time.perf_counter()
+        sol = jax.block_until_ready(policy.plan(inst, **options))
+        times.append(1e3 * (time.perf_counter() - t0))
+        rewards.append(float(sol.reward))
+        costs.append(float(sol.cost))
+        nodes.append(np.asarray(sol.nodes))
+    return rewards, costs, times, nodes
+
+
+def _policy_batched(policy, instances: SOPInstance, options: dict[str, Any], batch: int, repeats):
+    """ms per instance for full batches of ``batch`` (the first batch compiles first)."""
+    n = _count(instances)
+    batch = min(batch, n)
+    chunks = [take(instances, slice(lo, lo + batch)) for lo in range(0, n - batch + 1, batch)]
+    jax.block_until_ready(policy.plan(chunks[0], **options))
+    best = []
+    for chunk in chunks:
+        runs = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(policy.plan(chunk, **options))
+            runs.append(time.perf_counter() - t0)
+        best.append(min(runs))
+    per_batch = statistics.median(best)
+    return 1e3 * per_batch / batch, batch / per_batch, batch
+
+
+def evaluate_solvers(
+    policy,
+    instances: SOPInstance,
+    vns_kwargs: dict[str, Any] | None = None,
+    planners: dict[str, dict[str, Any]] | None = None,
+    batch_size: int = 64,
+    repeats: int = 3,
+    progress: bool = True,
+    teacher: tuple[list[Solution], list[float]] | None = None,
+) -> dict[str, Any]:
+    """Plan every instance with the teacher, the greedy baseline and each planner.
+
+    Args:
+        policy: a :class:`~bfsop_jax.policy.StrategicPolicy`.
+        instances: a NumPy batch of held-out instances.
+        vns_kwargs: options of :func:`solve_vns` (default: its reference configuration).
+        planners: name -> ``policy.plan`` options (default :data:`PLANNERS`).
+        batch_size: batch of the batched-latency measurement.
+        repeats: timed repetitions of each batch (the fastest counts).
+        teacher: precomputed ``(solutions, latencies_ms)`` of the VNS on these instances
+            (lets several models share one teacher run).
+
+    Returns:
+        The ``solver_eval.json`` dictionary: per planner mean reward and cost, latencies,
+        reward ratio to the VNS, speedup over it; the instance count; 2-opt effect.
+    """
+    n = _count(instances)
+    if n == 0:
+        raise ValueError("evaluate_solvers needs at least one instance")
+    vns_kwargs = dict(vns_kwargs or {})
+    planners = PLANNERS if planners is None else planners
+    if teacher is None:
+        teacher = _run_host_solver(
+            lambda x: solve_vns(x, seed=0, **vns_kwargs), instances, "VNS teacher", progress
+        )
+    vns_sols, vns_ms = teacher
+    vns_r = [float(s.reward) for s in vns_sols]
+    vns_c = [float(s.cost) for s in vns_sols]
+    result: dict[str, Any] = {
+        "instances": n,
+        "vns_config": {"seed": 0, **vns_kwargs},
+        "planners": {"vns": _summary(vns_r, vns_c, vns_ms)},
+    }
+    greedy_sols, greedy_ms = _run_host_solver(solve_greedy, instances, "greedy", progress)
+    result["planners"]["greedy_insertion"] = _summary(
+        [float(s.reward) for s in greedy_sols], [float(s.cost) for s in greedy_sols], greedy_ms
+    )
+    vns_mean = max(float(np.mean(vns_r)), 1e-12)
+    plans: dict[str, list[np.ndarray]] = {}
+    for name, options in planners.items():
+        rewards, costs, single, nodes = _policy_single(policy, instances, options, name, progress)
+        per_inst, per_s, used = _policy_batched(policy, instances, options, batch_size, repeats)
+        row = _summary(rewards, costs, single)
+        row.update(
+            options=options,
+            latency_ms_batched=per_inst,
+            plans_per_s_batched=per_s,
+            batch_size=used,
+            reward_ratio=float(np.mean(rewards)) / vns_mean,
+            speedup=result["planners"]["vns"]["latency_ms_single"] / row["latency_ms_single"],
+            matches_teacher_reward=float(
+                np.mean(np.abs(np.asarray(rewards) - np.asarray(vns_r)) <= 1e-4)
+            ),
+        )
+        result["planners"][name] = row
+        plans[name] = nodes
+    if "transformer" in result["planners"] and "transformer+2opt" in result["planners"]:
+        off, on = result["planners"]["transformer"], result["planners"]["transformer+2opt"]
+        result["two_opt"] = {
+            "cost_change_pct": 100.0
+            * (on["mean_cost"] - off["mean_cost"])
+            / max(off["mean_cost"], 1e-12),
+            "reward_change_pct": 100.0
+            * (on["mean_reward"] - off["mean_reward"])
+            / max(off["mean_reward"], 1e-12),
+            "latency_overhead_ms_single": on["latency_ms_single"] - off["latency_ms_single"],
+            "latency_overhead_ms_batched": on["latency_ms_batched"] - off["latency_ms_batched"],
+        }
+    result["_plans"] = plans  # for figures; dropped by write_json
+    result["_vns_plans"] = [s.node_list() for s in vns_sols]
+    return result
+
+
+def write_json(result: dict[str, Any], path: str | os.PathLike) -> None:
+    """Write the public part of an evaluation result atomically."""
+    public = {k: v for k, v in result.items() if not k.startswith("_")}
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(public, indent=1, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+
+
+def _fmt(x: float, digits: int = 2) -> str:
+    return f"{x:.{digits}f}"
+
+
+def write_tables(
+    result: dict[str, Any],
+    path: str | os.PathLike,
+    ablations: dict[str, dict[str, Any]] | None = None,
+    header: str = "",
+) -> str:
+    """Markdown Tables II and III (and the ablation table when given); written atomically."""
+    p = result["planners"]
+    vns = p["vns"]
+    lines = [header.rstrip(), ""] if header else []
+    lines += [
+        f"## Table II: solver comparison ({result['instances']} held-out instances)",
+        "",
+        "| planner | avg reward | avg cost | reward / VNS | latency single (ms) "
+        "| latency batched (ms/inst) | plans/s batched | speedup vs VNS |",
+        "|---|---|---|---|---|---|---|---|",
+        f"| VNS teacher | {_fmt(vns['mean_reward'])} | {_fmt(vns['mean_cost'])} | 1.000 "
+        f"| {_fmt(vns['latency_ms_single'], 1)} | - | - | 1x |",
+    ]
+    g = p["greedy_insertion"]
+    lines.append(
+        f"| greedy insertion | {_fmt(g['mean_reward'])} | {_fmt(g['mean_cost'])} "
+        f"| {g['mean_reward'] / max(vns['mean_reward'], 1e-12):.3f} "
+        f"| {_fmt(g['latency_ms_single'], 1)} | - | - "
+        f"| {vns['latency_ms_single'] / g['latency_ms_single']:.0f}x |"
+    )
+    for name, row in p.items():
+        if name in ("vns", "greedy_insertion"):
+            continue
+        lines.append(
+            f"| {name} | {_fmt(row['mean_reward'])} | {_fmt(row['mean_cost'])} "
+            f"| {row['reward_ratio']:.3f} | {_fmt(row['latency_ms_single'])} "
+            f"| {_fmt(row['latency_ms_batched'], 3)} | {row['plans_per_s_batched']:.0f} "
+            f"| {row['speedup']:.0f}x |"
+        )
+    if "two_opt" in result:
+        off, on, t = p["transformer"], p["transformer+2opt"], result["two_opt"]
+        lines += [
+            "",
+            "## Table III: the bounded 2-opt (greedy decoding, then budget gate)",
+            "",
+            "| planner | avg reward | avg cost | latency single (ms) | latency batched (ms/inst) |",
+            "|---|---|---|---|---|",
+            f"| Transformer | {_fmt(off['mean_reward'])} | {_fmt(off['mean_cost'])} "
+            f"| {_fmt(off['latency_ms_single'])} | {_fmt(off['latency_ms_batched'], 3)} |",
+            f"| Transformer + 2-opt | {_fmt(on['mean_reward'])} | {_fmt(on['mean_cost'])} "
+            f"| {_fmt(on['latency_ms_single'])} | {_fmt(on['latency_ms_batched'], 3)} |",
+            "",
+            f"2-opt: cost {t['cost_change_pct']:+.1f}%, reward {t['reward_change_pct']:+.1f}%, "
+            f"latency {t['latency_overhead_ms_single']:+.2f} ms single, "
+            f"{t['latency_overhead_ms_batched']:+.3f} ms/inst batched.",
+        ]
+    if ablations:
+        lines += [
+            "",
+            "## Ablations (same data, same seed; greedy decoding + 2-opt)",
+            "",
+            "| model | val loss | val acc | avg reward | reward / VNS | avg cost |",
+            "|---|---|---|---|---|---|",
+        ]
+        for name, row in ablations.items():
+            lines.append(
+                f"| {name} | {_fmt(row['val_loss'], 3)} | {_fmt(row['val_acc'], 3)} "
+                f"| {_fmt(row['mean_reward'])} | {row['reward_ratio']:.3f} "
+                f"| {_fmt(row['mean_cost'])} |"
+            )
+    text = "\n".join(lines) + "\n"
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return text
+
+
+def decoder_distance_mass(policy, instances: SOPInstance, batch: int = 64) -> np.ndarray:
+    """[2, 5] decoder node-probability mass per distance quintile: all steps, first step.
+
+    Quintile 0 holds the nearest fifth of the nodes allowed at that step (cost from the
+    current node); steps with fewer than five allowed nodes are skipped.
+    """
+    n = _count(instances)
+    sums, counts = np.zeros((2, 5)), np.zeros(2)
+    for lo in range(0, n, batch):
+        chunk = take(instances, slice(lo, lo + batch))
+        trace = jax.device_get(policy.trace(chunk))
+        probs, allowed = np.asarray(trace.probs), np.asarray(trace.allowed)
+        nodes = np.asarray(trace.solution.nodes)
+        cost = np.asarray(chunk.cost)
+        b, steps, n1 = probs.shape
+        n_inst = cost.shape[1]
+        for i in range(b):
+            for t in range(min(steps, nodes.shape[1])):
+                last = nodes[i, t]
+                if last < 0:
+                    break
+                ok = np.flatnonzero(allowed[i, t, : min(n1 - 1, n_inst)])
+                mass = probs[i, t, ok]
+                if ok.size < 5 or mass.sum() <= 0:
+                    continue
+                order = np.argsort(cost[i, last, ok], kind="stable")
+                quint = np.empty(ok.size, np.int64)
+                quint[order] = (5 * np.arange(ok.size)) // ok.size
+                share = np.bincount(quint, weights=mass / mass.sum(), minlength=5)
+                sums[0] += share
+                counts[0] += 1
+                if t == 0:
+                    sums[1] += share
+                    counts[1] += 1
+    return sums / np.maximum(counts, 1)[:, None]
+
+
+def _save(fig, path: str | os.PathLike) -> None:
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    tmp = path.with_suffix(".tmp" + path.suffix)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def plot_distance_mass(mass: np.ndarray, path: str | os.PathLike) -> None:
+    """Bar chart of :func:`decoder_distance_mass` (uniform choice = 0.2 per quintile)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    x = np.arange(5)
+    ax.bar(x - 0.2, mass[0], 0.4, label="all steps")
+    ax.bar(x + 0.2, mass[1], 0.4, label="first step (t = 0)")
+    ax.axhline(0.2, color="grey", ls=":", lw=1, label="uniform")
+    ax.set_xticks(x, ["Q1\n(nearest)", "Q2", "Q3", "Q4", "Q5\n(farthest)"])
+    ax.set(ylabel="decoder probability mass", title="Where the decoder looks: distance quintiles")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_tour_comparison(
+    instance: SOPInstance,
+    plans: dict[str, tuple[list[int], float, float]],
+    path: str | os.PathLike,
+) -> None:
+    """One panel per planner: nodes coloured by set, the start, the tour (straight lines
+    between the chosen viewpoints; the costs are geodesic), reward and cost in the title.
+
+    ``plans``: name -> (node ids, reward, cost).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    xy = np.asarray(instance.coords)
+    set_id = np.asarray(instance.set_id)
+    reward = np.asarray(instance.set_reward)
+    start = int(instance.start)
+    real = set_id >= 0
+    fig, axes = plt.subplots(1, len(plans), figsize=(5.2 * len(plans), 4.6), squeeze=False)
+    cmap = plt.get_cmap("tab20")
+    for ax, (name, (nodes, r, c)) in zip(axes[0], plans.items(), strict=True):
+        for s in np.unique(set_id[real]):
+            pts = xy[(set_id == s) & real]
+            if s == set_id[start]:
+                continue
+            alpha = 0.9 if reward[s] > 0 else 0.25
+            ax.scatter(pts[:, 0], pts[:, 1], s=18 + 60 * reward[s] / max(reward.max(), 1e-9),
+                       color=cmap(int(s) % 20), alpha=alpha)  # fmt: skip
+        tour = xy[[n for n in nodes if n >= 0]]
+        ax.plot(tour[:, 0], tour[:, 1], "-", color="tab:blue", lw=1.6)
+        ax.scatter(tour[1:, 0], tour[1:, 1], s=60, facecolors="none", edgecolors="tab:blue")
+        ax.plot(*xy[start], "o", ms=10, mfc="white", mec="k", mew=2)
+        if len(tour) > 1:
+            ax.plot(*tour[-1], "x", ms=10, color="k", mew=2)
+        ax.set_title(f"{name}\nreward {r:.2f}, cost {c:.1f} m")
+        ax.set_aspect("equal")
+        ax.set(xlabel="x (m)", ylabel="y (m)")
+        ax.grid(alpha=0.2)
+    fig.tight_layout()
+    _save(fig, path)

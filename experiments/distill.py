@@ -1,0 +1,332 @@
+"""Distil the VNS teacher into the Strategic Transformer and compare the two planners.
+
+    python -m experiments.distill [--preset demo|paper] [--out runs/<name>]
+    python -m experiments.distill --stage eval --checkpoint DIR --eval-seeds START:END --out DIR2
+
+Stages (``--stage all`` runs them in order):
+
+1. ``data``: teacher-labelled SOP instances from training houses (seeds below the
+   evaluation range): every exploitation decision of a BF-SOP agent planning with the VNS,
+   plus retrospective virtual tasks on each exploration run's final partial map, labelled
+   by the VNS through the batched host callback. Cached under ``--data-dir`` (default
+   ``data/distill-<preset>``) as versioned shards: a second run reuses them and an
+   interrupted one resumes.
+2. ``train``: behaviour cloning with teacher forcing (orbax checkpoint every epoch,
+   ``--resume`` continues), metrics in ``metrics.jsonl`` / ``metrics.csv`` and
+   ``training_curve.png``. With ``--ablations`` two more models are trained on the same data
+   with the same seed: without the geometric attention bias, and ``budget_aware``.
+3. ``eval``: held-out instances posed the same way in held-out houses; the VNS teacher
+   (reference configuration), the greedy insertion start and the Transformer (without and
+   with 2-opt, with symmetry augmentation, best of 8) plan each of them. Writes
+   ``solver_eval.json``, ``tables.md`` (Tables II and III, ablations),
+   ``tour_comparison.png`` and ``decoder_distance_mass.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from bfsop_jax import solver_eval
+from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
+from bfsop_jax.data.generate import DataConfig, generate_dataset, pose_tasks
+from bfsop_jax.policy import StrategicPolicy
+from bfsop_jax.training import RunConfig, train
+from bfsop_jax.training.bc import evaluate_imitation
+
+
+@dataclasses.dataclass(frozen=True)
+class DistillPreset:
+    """Sizes of one distillation run."""
+
+    data: DataConfig
+    val_houses: int  # the last training houses are held out for validation (model choice)
+    model: str  # model / recipe preset of bfsop_jax.training
+    epochs: int | None  # None: the recipe's value
+    lrs: tuple[float, ...]
+    seeds: tuple[int, ...]
+    eval_houses: int  # held-out houses for the solver evaluation
+    eval_tasks: int  # tasks posed per held-out house
+
+
+PRESETS: dict[str, DistillPreset] = {
+    # minutes on a 2-core laptop CPU: small data, the demo model, 30 epochs at lr 1e-3
+    # (the paper's 1e-4 needs its 100 epochs on far more data)
+    "demo": DistillPreset(
+        data=DataConfig(
+            preset="demo",
+            houses=24,
+            houses_per_shard=4,
+            tasks_per_house=48,
+            vns_iters=500,
+            vns_no_improve=250,
+        ),  # fmt: skip
+        val_houses=4,
+        model="demo",
+        epochs=None,
+        lrs=(1e-3,),
+        seeds=(0,),
+        eval_houses=4,
+        eval_tasks=24,
+    ),
+    # the paper setting (~1e5 step-level transitions; meant for a GPU and a long run)
+    "paper": DistillPreset(
+        data=DataConfig(preset="paper", houses=1024, houses_per_shard=8, tasks_per_house=24),
+        val_houses=64,
+        model="paper",
+        epochs=None,
+        lrs=(1e-4,),
+        seeds=(0,),
+        eval_houses=10,
+        eval_tasks=24,
+    ),
+    # a tiny end-to-end run for tests
+    "smoke": DistillPreset(
+        data=DataConfig(
+            preset="smoke",
+            houses=2,
+            houses_per_shard=1,
+            tasks_per_house=6,
+            vns_iters=100,
+            vns_no_improve=50,
+            on_trajectory=False,
+        ),  # fmt: skip
+        val_houses=1,
+        model="tiny",
+        epochs=2,
+        lrs=(1e-3,),
+        seeds=(0,),
+        eval_houses=1,
+        eval_tasks=6,
+    ),
+}
+
+ABLATIONS = {
+    "no_geometric_bias": {"geometric_bias": False},
+    "budget_aware": {"budget_aware": True},
+}
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--preset", default="demo", choices=sorted(PRESETS))
+    ap.add_argument("--out", default=None, help="run directory (default runs/distill-<preset>)")
+    ap.add_argument("--stage", default="all", choices=["all", "data", "train", "eval"])
+    ap.add_argument(
+        "--data-dir", default=None, help="dataset cache (default data/distill-<preset>)"
+    )
+    ap.add_argument("--checkpoint", default=None, help="eval: trained run dir (default --out)")
+    ap.add_argument("--eval-seeds", default=None, help="eval house seeds START:END (held out)")
+    ap.add_argument("--houses", type=int, default=None, help="override: training houses")
+    ap.add_argument("--tasks", type=int, default=None, help="override: virtual tasks per house")
+    ap.add_argument("--epochs", type=int, default=None, help="override: training epochs")
+    ap.add_argument("--resume", action="store_true", help="continue an interrupted training run")
+    ap.add_argument("--ablations", action="store_true", help="also train the two ablations")
+    ap.add_argument("--eval-tasks", type=int, default=None, help="override: tasks per eval house")
+    ap.add_argument("--no-progress", action="store_true")
+    return ap.parse_args(argv)
+
+
+def _data_config(args, preset: DistillPreset) -> DataConfig:
+    cfg = preset.data
+    if args.houses is not None:
+        cfg = dataclasses.replace(cfg, houses=args.houses)
+    if args.tasks is not None:
+        cfg = dataclasses.replace(cfg, tasks_per_house=args.tasks)
+    return cfg
+
+
+def _split(store, cfg: DataConfig, val_houses: int):
+    """Training and validation dicts: the shards of the last ``val_houses`` houses validate."""
+    n_val = max(1, -(-val_houses // cfg.houses_per_shard)) if cfg.n_shards > 1 else 0
+    shards = list(range(cfg.n_shards))
+    train_ds = store.load(shards[: len(shards) - n_val])
+    val_ds = store.load(shards[len(shards) - n_val :]) if n_val else None
+    return train_ds, val_ds
+
+
+def _run_config(preset: DistillPreset, data_cfg: DataConfig, epochs: int | None, **model_kw):
+    base = RunConfig.named(preset.model, preset=data_cfg.preset)
+    model = dataclasses.replace(base.model, **model_kw)
+    recipe = base.train
+    if epochs is not None or preset.epochs is not None:
+        recipe = dataclasses.replace(recipe, epochs=epochs or preset.epochs)
+    return RunConfig(model=model, train=recipe, preset=data_cfg.preset)
+
+
+def stage_data(args, preset: DistillPreset, data_dir: Path):
+    cfg = _data_config(args, preset)
+    t0 = time.perf_counter()
+    store = generate_dataset(data_dir, cfg, progress=not args.no_progress)
+    rows = sum(shard["rows"] for shard in store.meta["shards"].values())
+    print(f"dataset {data_dir}: {rows} instances ({time.perf_counter() - t0:.0f} s)")
+    return store, cfg
+
+
+def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> dict[str, Any]:
+    train_ds, val_ds = _split(store, cfg, preset.val_houses)
+    meta = {"data_dir": str(store.root), "data_config": dataclasses.asdict(cfg)}
+    runs = {"main": (out, {})}
+    if args.ablations:
+        for name, kw in ABLATIONS.items():
+            runs[name] = (out / "ablations" / name, kw)
+    summary = {}
+    for name, (run_dir, kw) in runs.items():
+        config = _run_config(preset, cfg, args.epochs, **kw)
+        resume = args.resume and (run_dir / "checkpoints").exists()
+        if (run_dir / "model").is_dir() and not args.resume:
+            print(f"{name}: trained model found in {run_dir}, kept (pass --resume to continue)")
+        else:
+            t0 = time.perf_counter()
+            print(f"training {name} ({config.train.epochs} epochs) -> {run_dir}")
+            train(config, train_ds, val_ds, run_dir, seeds=preset.seeds, lrs=preset.lrs,
+                  resume=resume, progress=not args.no_progress, dataset_meta=meta)  # fmt: skip
+            print(f"  {time.perf_counter() - t0:.0f} s")
+        policy = StrategicPolicy.load(run_dir)
+        stats = evaluate_imitation(policy.model, val_ds if val_ds is not None else train_ds)
+        summary[name] = {
+            "run_dir": str(run_dir),
+            "val_loss": stats["loss"],
+            "val_acc": stats["acc"],
+        }
+    return summary
+
+
+def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any] | None) -> dict:
+    checkpoint = Path(args.checkpoint) if args.checkpoint else out
+    if args.eval_seeds:
+        rng = parse_seed_range(args.eval_seeds)
+        lo, hi = rng.start, rng.stop
+        if lo < EVAL_SEED_START:
+            print(f"warning: eval seeds below {EVAL_SEED_START} may be training houses")
+    else:
+        lo, hi = EVAL_SEED_START, EVAL_SEED_START + preset.eval_houses
+    seeds = np.arange(lo, hi)
+    cfg = dataclasses.replace(preset.data, tasks_per_house=args.eval_tasks or preset.eval_tasks)
+    policy = StrategicPolicy.load(checkpoint)
+    instances, owners = pose_tasks(seeds, cfg, progress=not args.no_progress)
+    n = int(owners.shape[0])
+    print(f"evaluation: {n} instances from houses {lo}..{hi - 1}")
+    result = solver_eval.evaluate_solvers(policy, instances, progress=not args.no_progress)
+    result["house_seeds"] = [int(lo), int(hi)]
+    result["checkpoint"] = str(checkpoint)
+    result["machine"] = f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.default_backend()}"
+    result["date"] = time.strftime("%Y-%m-%d")
+    ablation_rows = None
+    if ablations:
+        teacher = (
+            [_solution_from(instances, i, p) for i, p in enumerate(result["_vns_plans"])],
+            [result["planners"]["vns"]["latency_ms_single"]] * n,
+        )
+        ablation_rows = {}
+        for name, info in ablations.items():
+            pol = (
+                policy
+                if Path(info["run_dir"]) == checkpoint
+                else StrategicPolicy.load(info["run_dir"])
+            )
+            sub = solver_eval.evaluate_solvers(
+                pol, instances, planners={"transformer+2opt": {"two_opt": True}},
+                progress=False, teacher=teacher,
+            )  # fmt: skip
+            row = sub["planners"]["transformer+2opt"]
+            ablation_rows[name] = {**info, **{k: row[k] for k in ("mean_reward", "mean_cost",
+                                                                 "reward_ratio")}}  # fmt: skip
+        result["ablations"] = ablation_rows
+    out.mkdir(parents=True, exist_ok=True)
+    solver_eval.write_json(result, out / "solver_eval.json")
+    header = (
+        f"# Distillation results ({args.preset})\n\nHeld-out houses {lo}..{hi - 1}, "
+        f"{n} instances, {result['machine']}, {result['date']}. Checkpoint: `{checkpoint}`."
+    )
+    text = solver_eval.write_tables(result, out / "tables.md", ablation_rows, header)
+    print(text)
+    _figures(policy, instances, result, out)
+    return result
+
+
+def _solution_from(instances, i: int, nodes: list[int]):
+    from bfsop_jax.sop import evaluate
+    from bfsop_jax.sop.types import Solution
+
+    reward, cost, _ = evaluate(solver_eval.take(instances, i), nodes)
+    return Solution(nodes=np.asarray(nodes, np.int32), reward=np.float32(reward),
+                    cost=np.float32(cost))  # fmt: skip
+
+
+def _figures(policy, instances, result: dict, out: Path) -> None:
+    from bfsop_jax.sop import evaluate
+
+    vns_plans = result["_vns_plans"]
+    model_plans = result["_plans"]["transformer+2opt"]
+    # the instance where the teacher visits the most sets (a readable, non-trivial tour)
+    i = int(np.argmax([len(p) for p in vns_plans]))
+    inst = solver_eval.take(instances, i)
+    plans = {}
+    for name, nodes in (
+        ("VNS teacher", vns_plans[i]),
+        ("Transformer + 2-opt", [int(x) for x in model_plans[i] if x >= 0]),
+    ):
+        reward, cost, _ = evaluate(inst, nodes)
+        plans[name] = (nodes, float(reward), float(cost))  # fmt: skip
+    solver_eval.plot_tour_comparison(inst, plans, out / "tour_comparison.png")
+    mass = solver_eval.decoder_distance_mass(policy, instances)
+    result["distance_mass"] = {"all_steps": mass[0].tolist(), "first_step": mass[1].tolist()}
+    solver_eval.write_json(result, out / "solver_eval.json")
+    solver_eval.plot_distance_mass(mass, out / "decoder_distance_mass.png")
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    args = _parse(argv)
+    preset = PRESETS[args.preset]
+    out = Path(args.out or f"runs/distill-{args.preset}")
+    data_dir = Path(args.data_dir or f"data/distill-{args.preset}")
+    t0 = time.perf_counter()
+    summary: dict[str, Any] = {}
+    ablations = None
+    if args.stage in ("all", "data", "train"):
+        store, cfg = stage_data(args, preset, data_dir)
+        if args.stage != "data":
+            ablations = stage_train(args, preset, store, cfg, out)
+            summary["training"] = ablations
+    if args.stage == "eval" and args.ablations:
+        ablations = _trained_ablations(out if args.checkpoint is None else Path(args.checkpoint))
+    if args.stage in ("all", "eval"):
+        result = stage_eval(args, preset, out, ablations if args.ablations else None)
+        summary["solver_eval"] = {k: v for k, v in result.items() if not k.startswith("_")}
+    print(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}")
+    return summary
+
+
+def _trained_ablations(run_dir: Path) -> dict[str, Any]:
+    rows = {}
+    for name, path in [("main", run_dir)] + [(n, run_dir / "ablations" / n) for n in ABLATIONS]:
+        if not (path / "model").is_dir():
+            continue
+        rows[name] = {"run_dir": str(path), "val_loss": float("nan"), "val_acc": float("nan")}
+        metrics = path / "metrics.jsonl"
+        if metrics.exists():
+            last = [json.loads(x) for x in metrics.read_text().splitlines() if x.strip()]
+            if last:
+                rows[name].update(
+                    val_loss=last[-1].get("val_loss"), val_acc=last[-1].get("val_acc")
+                )
+    return rows
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None

@@ -1,0 +1,128 @@
+"""Solver evaluation (Tables II/III, decoder distance mass) and the distill pipeline."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+from flax import nnx
+
+from bfsop_jax import solver_eval
+from bfsop_jax.config import EVAL_SEED_START
+from bfsop_jax.data.generate import DataConfig, pose_tasks
+from bfsop_jax.model import ModelConfig, StrategicTransformer
+from bfsop_jax.policy import StrategicPolicy
+from bfsop_jax.sop import evaluate, solve_vns
+from bfsop_jax.sop.io import random_instance
+
+
+@pytest.fixture(scope="module")
+def policy() -> StrategicPolicy:
+    model = StrategicTransformer(
+        ModelConfig(d_model=32, n_layers=1, n_heads=2, d_ff=64), rngs=nnx.Rngs(0)
+    )
+    kernel = model.decoder.project_glimpse.kernel  # zero at init: make the scores non-uniform
+    kernel[...] = jax.random.normal(jax.random.key(1), kernel.shape) / np.sqrt(kernel.shape[0])
+    return StrategicPolicy(model, num_nodes=31, num_sets=11)
+
+
+@pytest.fixture(scope="module")
+def batch():
+    insts = [random_instance(s, num_sets=8, viewpoints=3, masked_sets=s % 2) for s in range(6)]
+    return jax.tree_util.tree_map(lambda *x: np.stack(x), *insts)
+
+
+def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
+    planners = {"transformer": {"two_opt": False}, "transformer+2opt": {"two_opt": True}}
+    result = solver_eval.evaluate_solvers(
+        policy, batch, vns_kwargs={"max_iters": 100, "max_no_improve": 50},
+        planners=planners, batch_size=4, repeats=1, progress=False,
+    )  # fmt: skip
+    assert result["instances"] == 6
+    p = result["planners"]
+    assert set(p) == {"vns", "greedy_insertion", *planners}
+    vns = [solve_vns(solver_eval.take(batch, i), max_iters=100, max_no_improve=50) for i in range(6)]
+    assert p["vns"]["mean_reward"] == pytest.approx(np.mean([float(s.reward) for s in vns]))
+    for name in planners:
+        row = p[name]
+        assert row["reward_ratio"] == pytest.approx(row["mean_reward"] / p["vns"]["mean_reward"])
+        assert row["latency_ms_single"] > 0 and row["plans_per_s_batched"] > 0
+        assert row["batch_size"] == 4
+        # the recorded plans are feasible and give the reported means
+        rewards = []
+        for i, nodes in enumerate(result["_plans"][name]):
+            r, c, ok = evaluate(solver_eval.take(batch, i), nodes[nodes >= 0])
+            assert ok
+            rewards.append(r)
+        assert np.mean(rewards) == pytest.approx(row["mean_reward"], rel=1e-5)
+    two = result["two_opt"]
+    assert two["cost_change_pct"] == pytest.approx(
+        100 * (p["transformer+2opt"]["mean_cost"] / p["transformer"]["mean_cost"] - 1)
+    )
+
+    solver_eval.write_json(result, tmp_path / "solver_eval.json")
+    saved = json.loads((tmp_path / "solver_eval.json").read_text())
+    assert "_plans" not in saved and saved["planners"]["vns"]["mean_reward"] > 0
+    text = solver_eval.write_tables(result, tmp_path / "tables.md")
+    assert "Table II" in text and "Table III" in text and "VNS teacher" in text
+    assert (tmp_path / "tables.md").read_text() == text
+
+
+def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
+    mass = solver_eval.decoder_distance_mass(policy, batch, batch=4)
+    assert mass.shape == (2, 5)
+    np.testing.assert_allclose(mass.sum(axis=1), 1.0, atol=1e-5)
+    assert (mass >= 0).all()
+    solver_eval.plot_distance_mass(mass, tmp_path / "mass.png")
+    assert (tmp_path / "mass.png").stat().st_size > 0
+
+
+def test_pose_tasks_on_held_out_houses():
+    cfg = DataConfig(preset="smoke", houses=1, tasks_per_house=5)
+    insts, owners = pose_tasks([EVAL_SEED_START, EVAL_SEED_START + 1], cfg, progress=False)
+    assert insts.set_id.shape[0] == owners.shape[0] > 0
+    assert set(owners.tolist()) <= {EVAL_SEED_START, EVAL_SEED_START + 1}
+    assert (np.asarray(insts.set_reward) > 0).any(axis=1).all()  # nothing trivial kept
+    with pytest.raises(ValueError, match="at least one house"):
+        pose_tasks([], cfg)
+
+
+@pytest.mark.slow
+def test_distill_end_to_end_and_eval_rerun(tmp_path):
+    """The smoke preset: data -> train -> eval, then the eval stage alone on other seeds."""
+    from experiments import distill
+
+    run, data = tmp_path / "run", tmp_path / "data"
+    summary = distill.main(
+        ["--preset", "smoke", "--out", str(run), "--data-dir", str(data), "--no-progress"]
+    )
+    for name in ("tables.md", "solver_eval.json", "tour_comparison.png",
+                 "decoder_distance_mass.png", "training_curve.png", "metrics.csv"):  # fmt: skip
+        assert (run / name).is_file(), name
+    ev = json.loads((run / "solver_eval.json").read_text())
+    assert ev["instances"] > 0 and ev["planners"]["transformer+2opt"]["speedup"] > 0
+    assert summary["solver_eval"]["instances"] == ev["instances"]
+    # cached data: a second data stage generates nothing new
+    meta = (data / "meta.json").read_text()
+    distill.main(["--preset", "smoke", "--stage", "data", "--data-dir", str(data), "--no-progress"])
+    assert (data / "meta.json").read_text() == meta
+    # the evaluation alone, on other held-out houses, into another directory
+    other = tmp_path / "eval2"
+    seeds = f"{EVAL_SEED_START + 5}:{EVAL_SEED_START + 6}"
+    distill.main(["--preset", "smoke", "--stage", "eval", "--checkpoint", str(run),
+                  "--eval-seeds", seeds, "--out", str(other), "--no-progress"])  # fmt: skip
+    ev2 = json.loads((other / "solver_eval.json").read_text())
+    assert ev2["house_seeds"] == [EVAL_SEED_START + 5, EVAL_SEED_START + 6]
+    assert (other / "tables.md").is_file()
+
+
+def test_distill_rejects_bad_arguments(tmp_path, capsys):
+    from experiments import distill
+
+    with pytest.raises(SystemExit):
+        distill.main(["--preset", "huge"])
+    with pytest.raises(ValueError, match="START:END"):
+        distill.main(["--preset", "smoke", "--stage", "eval", "--checkpoint", str(tmp_path),
+                      "--eval-seeds", "nonsense", "--out", str(tmp_path)])  # fmt: skip
