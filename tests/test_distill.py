@@ -43,7 +43,8 @@ def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
     assert result["instances"] == 6
     p = result["planners"]
     assert set(p) == {"vns", "greedy_insertion", *planners}
-    vns = [solve_vns(solver_eval.take(batch, i), max_iters=100, max_no_improve=50) for i in range(6)]
+    vns = [solve_vns(solver_eval.take(batch, i), max_iters=100, max_no_improve=50)
+           for i in range(6)]  # fmt: skip
     assert p["vns"]["mean_reward"] == pytest.approx(np.mean([float(s.reward) for s in vns]))
     for name in planners:
         row = p[name]
