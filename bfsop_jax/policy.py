@@ -34,7 +34,7 @@ from flax import nnx
 from bfsop_jax.model.decode import DecodeTrace, decode
 from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
-from bfsop_jax.sop.two_opt import budget_gate
+from bfsop_jax.sop.two_opt import budget_gate, insertion_fill
 from bfsop_jax.sop.two_opt import two_opt as sop_two_opt
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.training import checkpoint as ckpt
@@ -122,6 +122,7 @@ class StrategicPolicy:
         best_of: int = 1,
         key: jax.Array | None = None,
         temperature: float = 1.0,
+        fill: bool = False,
     ) -> Solution:
         """Plan one instance (``set_id`` [n]) or a batch (``set_id`` [B, n]).
 
@@ -132,6 +133,8 @@ class StrategicPolicy:
             best_of: k > 1 adds k sampled plans to the greedy one, keeps the best.
             key: PRNG key for sampling (default ``jax.random.key(0)``: deterministic).
             temperature: softmax temperature of the sampled plans.
+            fill: after the budget gate, spend the unused budget by greedy cheapest
+                insertion of unvisited sets (:func:`bfsop_jax.sop.insertion_fill`).
 
         Returns:
             A feasible :class:`Solution` (``nodes`` [T] or [B, T] with T = plan_length(k),
@@ -152,6 +155,7 @@ class StrategicPolicy:
             use_two_opt=bool(two_opt),
             augment=bool(augment),
             best_of=best_of,
+            fill=bool(fill),
         )
         return _unpad(sol, k, single)
 
@@ -167,6 +171,7 @@ class StrategicPolicy:
         augment: bool = False,
         best_of: int = 1,
         temperature: float | jax.Array = 1.0,
+        fill: bool = False,
     ) -> Solution:
         """:meth:`plan` as a pure JAX function, to call inside the caller's ``jit``/``scan``.
 
@@ -194,6 +199,7 @@ class StrategicPolicy:
             bool(two_opt),
             bool(augment),
             int(best_of),
+            bool(fill),
         )
         return _unpad(sol, k, single)
 
@@ -229,11 +235,15 @@ def _trace_jit(params: Any, inst: SOPInstance, *, graphdef: nnx.GraphDef) -> Dec
     return decode(nnx.merge(graphdef, params), inst)
 
 
-@functools.partial(jax.jit, static_argnames=("graphdef", "use_two_opt", "augment", "best_of"))
-def _plan_jit(params, inst, key, temperature, *, graphdef, use_two_opt, augment, best_of):
+@functools.partial(
+    jax.jit, static_argnames=("graphdef", "use_two_opt", "augment", "best_of", "fill")
+)
+def _plan_jit(params, inst, key, temperature, *, graphdef, use_two_opt, augment, best_of, fill):
     # compiled once per (model graph, batch size, options); the body is looked up at trace
     # time, which lets tests count traces
-    return _plan_program(graphdef, params, inst, key, temperature, use_two_opt, augment, best_of)
+    return _plan_program(
+        graphdef, params, inst, key, temperature, use_two_opt, augment, best_of, fill
+    )
 
 
 def _plan_program(
@@ -245,6 +255,7 @@ def _plan_program(
     use_two_opt: bool,
     augment: bool,
     best_of: int,
+    fill: bool = False,
 ) -> Solution:
     """Encode, decode (greedy, symmetries, samples), 2-opt, gate, keep the best; batch B."""
     model = nnx.merge(graphdef, params)
@@ -264,6 +275,8 @@ def _plan_program(
     if use_two_opt:
         sol = sop_two_opt(every, sol, max_iters=TWO_OPT_ITERS)
     sol = budget_gate(every, sol)
+    if fill:
+        sol = insertion_fill(every, sol)
     return _best(sol, draws * views, b)
 
 

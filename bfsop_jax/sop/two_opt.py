@@ -29,7 +29,7 @@ import jax.numpy as jnp
 
 from bfsop_jax.sop.types import Solution, SOPInstance
 
-__all__ = ["two_opt", "budget_gate"]
+__all__ = ["two_opt", "budget_gate", "insertion_fill"]
 
 
 def _batched(fn):
@@ -221,3 +221,59 @@ def budget_gate(instance: SOPInstance, solution: Solution) -> Solution:
     :func:`two_opt`.
     """
     return _batched(_budget_gate_single)(instance, solution)
+
+
+def _insertion_fill_single(instance: SOPInstance, solution: Solution) -> Solution:
+    cx = _extended_cost(instance)
+    route, m = _route(instance, solution.nodes)
+    t1 = route.shape[0]
+    n = instance.cost.shape[-1]
+    k = instance.set_reward.shape[-1]
+    set_id = instance.set_id
+    reward = instance.set_reward[jnp.clip(set_id, 0)]  # [N] reward of each node's set
+    end = jnp.where(instance.end >= 0, instance.end, n)
+    blocked = jnp.zeros((k,), bool).at[jnp.clip(set_id[instance.start], 0)].set(True)
+    blocked = blocked | ((jnp.arange(k) == set_id[jnp.clip(instance.end, 0)]) & (instance.end >= 0))
+    pos = jnp.arange(t1)
+
+    def step(state):
+        route, m, cost, _ = state
+        on_route = (pos >= 1) & (pos <= m)
+        used = (
+            jnp.zeros((k,), bool).at[jnp.clip(set_id[jnp.clip(route, 0, n - 1)], 0)].max(on_route)
+        )
+        free = (set_id >= 0) & ~(used | blocked)[jnp.clip(set_id, 0)] & (reward > 0)
+        nxt = route[jnp.clip(pos + 1, 0, t1 - 1)]
+        delta = cx[route][:, :n] + cx[:n, nxt].T - cx[route, nxt][:, None]  # [T+1, N]
+        ok = (pos[:, None] <= m) & free[None, :] & (cost + delta <= instance.budget)
+        ok = ok & (m + 2 < t1)  # a slot is left for the end
+        score = jnp.where(ok, jnp.maximum(delta, 0.0) / reward[None, :], jnp.inf)
+        flat = jnp.argmin(score)
+        p, j = flat // n, flat % n
+        found = jnp.isfinite(score.reshape(-1)[flat])
+        shifted = jnp.where(
+            pos <= p, route, jnp.where(pos == p + 1, j, route[jnp.clip(pos - 1, 0)])
+        )
+        new_route = jnp.where(found, shifted, route).astype(jnp.int32)
+        return new_route, m + found, cost + jnp.where(found, delta[p, j], 0.0), found
+
+    def cond(state):
+        return state[3]
+
+    cost0 = _route_cost(cx, route)
+    route, m, _, _ = jax.lax.while_loop(cond, step, (route, m, cost0, jnp.bool_(True)))
+    route = jnp.where(pos == m + 1, end, route)  # the end (or virtual node) after the plan
+    return _to_solution(instance, cx, route, m)
+
+
+@jax.jit
+def insertion_fill(instance: SOPInstance, solution: Solution) -> Solution:
+    """Spend budget the plan leaves unused: greedy cheapest insertion of unvisited sets.
+
+    Repeatedly inserts the node of an unvisited rewarding set, at the position of the
+    plan, with the smallest added cost per unit reward among those that keep the plan
+    within the budget (the VNS's greedy rule); stops when nothing fits. Never lowers the
+    reward; the input should already fit the budget (e.g. after :func:`budget_gate`).
+    Single or batched like :func:`two_opt`.
+    """
+    return _batched(_insertion_fill_single)(instance, solution)
