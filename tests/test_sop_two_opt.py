@@ -8,7 +8,15 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bfsop_jax.sop import Solution, SOPInstance, budget_gate, evaluate, plan_length, two_opt
+from bfsop_jax.sop import (
+    Solution,
+    SOPInstance,
+    budget_gate,
+    evaluate,
+    insertion_fill,
+    plan_length,
+    two_opt,
+)
 from bfsop_jax.sop import vns as V
 from bfsop_jax.sop.io import random_instance
 
@@ -126,3 +134,46 @@ def test_batch_matches_single_and_compiles_once():
 
     for _ in range(3):
         jax.block_until_ready(plan_and_gate(batch_inst, batch_plan))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    closed=st.booleans(),
+    masked=st.integers(0, 2),
+    scale=st.floats(0.1, 0.8),
+)
+def test_insertion_fill_only_adds_sets_within_budget(seed, closed, masked, scale):
+    inst = random_instance(seed, num_sets=SETS, viewpoints=VIEWS, closed=closed,
+                           budget_scale=scale, masked_sets=masked)  # fmt: skip
+    gated = budget_gate(inst, _random_plan(inst, np.random.default_rng(seed)))
+    filled = insertion_fill(inst, gated)
+    reward, cost, feasible = evaluate(inst, np.asarray(filled.nodes))
+    assert feasible
+    assert cost <= float(inst.budget) + 1e-3
+    assert reward >= float(gated.reward) - 1e-5
+    assert abs(float(filled.reward) - reward) <= 1e-5
+    before = set(_visited_sets(inst, gated.nodes))
+    after = set(_visited_sets(inst, filled.nodes))
+    assert before <= after
+    # nothing left out fits: every remaining rewarding set is too expensive to insert
+    nodes = [int(v) for v in np.asarray(filled.nodes) if v >= 0]
+    inner_end = len(nodes) - 1 if int(inst.end) >= 0 else len(nodes)
+    for s in range(inst.num_sets):
+        if s in after or inst.set_reward[s] <= 0 or s == inst.set_id[inst.start]:
+            continue
+        for v in np.flatnonzero(inst.set_id == s):
+            for p in range(1, inner_end + 1):
+                trial = nodes[:p] + [int(v)] + nodes[p:]
+                assert evaluate(inst, trial)[1] > float(inst.budget) - 1e-3
+
+
+def test_insertion_fill_batch_matches_single():
+    insts = [random_instance(s, num_sets=SETS, viewpoints=VIEWS, closed=s % 2 == 1)
+             for s in range(4)]  # fmt: skip
+    plans = [budget_gate(i, _random_plan(i, np.random.default_rng(s))) for s, i in enumerate(insts)]
+    stack = jax.tree_util.tree_map(lambda *x: np.stack(x), *insts)
+    batch = insertion_fill(stack, jax.tree_util.tree_map(lambda *x: np.stack(x), *plans))
+    for i, (inst, plan) in enumerate(zip(insts, plans, strict=True)):
+        one = insertion_fill(inst, plan)
+        np.testing.assert_array_equal(np.asarray(batch.nodes[i]), np.asarray(one.nodes))
