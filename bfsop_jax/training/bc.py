@@ -39,6 +39,7 @@ import optax
 from flax import nnx, struct
 
 from bfsop_jax.model.decode import teacher_forced_logits
+from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.training import checkpoint as ckpt
@@ -249,9 +250,24 @@ def _epoch_key(seed: int, epoch: int) -> jax.Array:
     return jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), 1), epoch)
 
 
-def _batch_stats(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array], weight=None):
+def _batch_stats(
+    graphdef: nnx.GraphDef,
+    params: Any,
+    batch: Mapping[str, jax.Array],
+    weight=None,
+    key: jax.Array | None = None,
+):
+    """Summed imitation stats of a minibatch; with ``key``, every instance is seen under
+    a random one of the 8 coordinate symmetries (training augmentation)."""
     model = nnx.merge(graphdef, params)
-    tf = teacher_forced_logits(model, _instances(batch), batch["teacher_nodes"])
+    inst = _instances(batch)
+    features = None
+    if key is not None:
+        features = node_features(inst)
+        variants = symmetric_features(features).nodes  # [8, B, N, F]
+        pick = jax.random.randint(key, (variants.shape[1],), 0, NUM_SYMMETRIES)
+        features = features.replace(nodes=variants[pick, jnp.arange(variants.shape[1])])
+    tf = teacher_forced_logits(model, inst, batch["teacher_nodes"], features)
     return imitation_stats(tf, weight)
 
 
@@ -277,32 +293,40 @@ def make_train_epoch(
         graphdef=graphdef,
         batch_size=batch_size,
         num_instances=num_instances,
+        augment=config.augment,
     )
 
 
-@functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances"))
-def _train_epoch(states, data, keys, recipe, *, graphdef, batch_size: int, num_instances: int):
+@functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances", "augment"))
+def _train_epoch(
+    states, data, keys, recipe, *, graphdef, batch_size: int, num_instances: int, augment: bool
+):
     num_batches = num_instances // batch_size
     grad_clip, lr_decay, decay_steps = recipe[0], recipe[1], recipe[2]
     tx = make_optimizer(grad_clip)
 
-    def loss(params, batch):
-        stats = _batch_stats(graphdef, params, batch)
+    def loss(params, batch, key):
+        stats = _batch_stats(graphdef, params, batch, key=key if augment else None)
         return stats[0] / jnp.maximum(stats[2], 1.0), stats
 
     def epoch(state: TrainState, key: jax.Array):
-        order = jax.random.permutation(key, num_instances)[: num_batches * batch_size]
+        shuffle, sym = jax.random.split(key)
+        order = jax.random.permutation(shuffle, num_instances)[: num_batches * batch_size]
+        sym_keys = jax.random.split(sym, num_batches)
 
-        def minibatch(state: TrainState, idx: jax.Array):
+        def minibatch(state: TrainState, xs):
+            idx, sym_key = xs
             batch = jax.tree_util.tree_map(lambda x: x[idx], data)
-            grads, stats = jax.grad(loss, has_aux=True)(state.params, batch)
+            grads, stats = jax.grad(loss, has_aux=True)(state.params, batch, sym_key)
             updates, opt_state = tx.update(grads, state.opt_state, state.params)
             lr = state.lr * lr_factor(state.step, decay_steps, lr_decay)
             updates = jax.tree_util.tree_map(lambda u: -lr * u, updates)
             params = optax.apply_updates(state.params, updates)
             return state.replace(params=params, opt_state=opt_state, step=state.step + 1), stats
 
-        state, stats = jax.lax.scan(minibatch, state, order.reshape(num_batches, batch_size))
+        state, stats = jax.lax.scan(
+            minibatch, state, (order.reshape(num_batches, batch_size), sym_keys)
+        )
         return state, jnp.sum(stats, axis=0)
 
     return jax.vmap(epoch)(states, keys)

@@ -39,6 +39,7 @@ class TrainConfig:
     lr_decay: float = 0.5  # step decay factor ...
     decay_every: int | None = None  # ... every this many epochs (None: a third of the run)
     keep_checkpoints: int = 3  # epoch checkpoints kept on disk
+    augment: bool = False  # show each instance under a random coordinate symmetry
 
     def __post_init__(self) -> None:
         if not isinstance(self.epochs, int) or self.epochs < 1:
