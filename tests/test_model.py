@@ -221,11 +221,13 @@ def test_encoder_is_permutation_equivariant(model, batch):
     np.testing.assert_allclose(encode(model, permuted), encode(model, batch)[:, perm], atol=1e-5)
 
 
-@pytest.mark.parametrize("budget_aware", [False, True])
-def test_teacher_forcing_matches_decoding(batch, budget_aware):
+@pytest.mark.parametrize(("budget_aware", "budget_mask"), [(False, False), (True, False),
+                                                           (False, True)])  # fmt: skip
+def test_teacher_forcing_matches_decoding(batch, budget_aware, budget_mask):
     """Feeding a model its own greedy plans as teacher gives the decoder's step
     distributions, and every target is the arg-max (masks and budget agree in both paths)."""
-    model = untrained(dataclasses.replace(TINY, budget_aware=budget_aware), 5)
+    config = dataclasses.replace(TINY, budget_aware=budget_aware, budget_mask=budget_mask)
+    model = untrained(config, 5)
     trace = run_decode(model, batch)
     g, p = _split(model)
     tf = _teacher(p, batch, trace.solution.nodes, graphdef=g)
@@ -235,6 +237,26 @@ def test_teacher_forcing_matches_decoding(batch, budget_aware):
     probs = np.exp(np.asarray(tf.log_probs))
     np.testing.assert_allclose(probs[valid], np.asarray(trace.probs)[valid], atol=1e-5)
     np.testing.assert_array_equal(np.argmax(tf.log_probs, -1)[valid], np.asarray(tf.target)[valid])
+
+
+def test_budget_mask_keeps_plans_feasible_and_maximal(batch):
+    """With ``budget_mask`` every decoded plan (greedy or sampled) fits the budget without
+    the gate, and END is chosen only when no allowed node fits any more."""
+    model = untrained(dataclasses.replace(TINY, budget_mask=True), 5)
+    b = batch.set_id.shape[0]
+    tight = batch.replace(budget=batch.budget * 0.5)
+    for seed in range(2):
+        trace = run_decode(model, tight, jax.random.key(seed), np.arange(b) % 2 == 0)
+        nodes = np.asarray(trace.solution.nodes)
+        allowed = np.asarray(trace.allowed)
+        for i in range(b):
+            check_plan(tight[i], nodes[i])
+            _, cost, feasible = evaluate(tight[i], nodes[i])
+            assert feasible and cost <= float(tight.budget[i]) + 1e-3
+            # END is allowed exactly at the steps where no node is
+            m = int((nodes[i] >= 0).sum()) - 1
+            for t in range(m + 1):
+                assert allowed[i, t, -1] == (not allowed[i, t, :-1].any())
 
 
 def test_budget_aware_decoder_reads_the_budget(batch):

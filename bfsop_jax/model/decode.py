@@ -91,6 +91,34 @@ def allowed_next(instance: SOPInstance, visited_sets: jax.Array, last: jax.Array
     return jnp.concatenate([nodes, jnp.ones(last.shape + (1,), bool)], axis=-1)
 
 
+def fits_budget(
+    instance: SOPInstance, allowed: jax.Array, last: jax.Array, travelled: jax.Array
+) -> jax.Array:
+    """The budget rule of ``ModelConfig.budget_mask`` applied to a mask from
+    :func:`allowed_next`: a node stays allowed only if going there (and on to the end node
+    of a closed tour or goal path) keeps the plan within the budget; END is allowed only
+    when no node is.
+
+    Args:
+        instance: batch of B instances.
+        allowed: [B, S, N+1] mask (END at index N).
+        last: [B, S] int32 last node of each state.
+        travelled: [B, S] cost of each state's plan so far.
+    """
+    n = instance.set_id.shape[-1]
+    step = jnp.take_along_axis(instance.cost, last[..., None], axis=1)  # [B, S, N]
+    end = jnp.clip(instance.end, 0)
+    to_end = jnp.take_along_axis(
+        instance.cost, jnp.broadcast_to(end[:, None, None], (end.shape[0], n, 1)), axis=2
+    )[..., 0]
+    to_end = jnp.where(instance.end[:, None] >= 0, to_end, 0.0)  # [B, N]
+    left = instance.budget[:, None, None] - travelled[..., None]
+    tol = 1e-5 * jnp.maximum(1.0, instance.budget)[:, None, None]
+    nodes = allowed[..., :n] & (step + to_end[:, None, :] <= left + tol)
+    end_ok = ~jnp.any(nodes, axis=-1, keepdims=True)
+    return jnp.concatenate([nodes, end_ok], axis=-1)
+
+
 def plan_value(instance: SOPInstance, nodes: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Reward and cost of padded plans, exactly from the instance (JAX).
 
@@ -155,13 +183,15 @@ def teacher_forced_logits(
     visited = jnp.cumsum(used, axis=1) > 0  # sets of teacher_nodes[:, :s+1]
     visited = visited | _blocked_sets(instance)[:, None]
     allowed = allowed_next(instance, visited, safe_last)
+    edge = jax.vmap(lambda c, a, b: c[a, b])(instance.cost, safe_last, jnp.clip(nxt, 0))
+    edge = jnp.where(valid & (nxt >= 0), edge, 0.0)
+    travelled = jnp.cumsum(edge, axis=1) - edge  # cost of the prefix up to step s
+    if model.config.budget_mask:
+        allowed = fits_budget(instance, allowed, safe_last, travelled)
     allowed = allowed | jax.nn.one_hot(target, n + 1, dtype=bool)
 
     budget_left = None
     if model.config.budget_aware:
-        edge = jax.vmap(lambda c, a, b: c[a, b])(instance.cost, safe_last, jnp.clip(nxt, 0))
-        edge = jnp.where(valid & (nxt >= 0), edge, 0.0)
-        travelled = jnp.cumsum(edge, axis=1) - edge  # cost of the prefix up to step s
         budget_left = normalised_budget(
             instance.budget[:, None] - travelled, features.cost_scale[:, None]
         )
@@ -209,6 +239,8 @@ def decode(
     def step(carry, step_key):
         last, visited, done, travelled = carry
         allowed = allowed_next(instance, visited[:, None], last[:, None])  # [B, 1, N+1]
+        if model.config.budget_mask:
+            allowed = fits_budget(instance, allowed, last[:, None], travelled[:, None])
         budget_left = None
         if model.config.budget_aware:
             budget_left = normalised_budget(instance.budget - travelled, cache.cost_scale)

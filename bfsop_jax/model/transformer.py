@@ -54,6 +54,7 @@ class ModelConfig:
     clip: float = 10.0  # pointer scores are clip * tanh(q . k / sqrt(d))
     geometric_bias: bool = True  # add the learned-scale log-cost bias to attention logits
     budget_aware: bool = False  # feed the remaining budget to the decoder query
+    budget_mask: bool = False  # mask nodes that no longer fit; END only when none does
     bias_scale_init: float = 1.0  # initial per-head scale of the geometric bias
 
     def __post_init__(self) -> None:
