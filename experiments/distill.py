@@ -57,6 +57,10 @@ class DistillPreset:
     seeds: tuple[int, ...]
     eval_houses: int  # held-out houses for the solver evaluation
     eval_tasks: int  # tasks posed per held-out house
+    # decoder masks nodes that no longer fit the budget (END only when none does); the
+    # network itself stays budget-independent as in the paper
+    model_options: tuple[tuple[str, Any], ...] = (("budget_mask", True),)
+    augment: bool = True  # train on random coordinate symmetries of each instance
 
 
 PRESETS: dict[str, DistillPreset] = {
@@ -114,6 +118,7 @@ PRESETS: dict[str, DistillPreset] = {
 ABLATIONS = {
     "no_geometric_bias": {"geometric_bias": False},
     "budget_aware": {"budget_aware": True},
+    "no_budget_mask": {"budget_mask": False},  # the paper's decoder masks
 }
 
 
@@ -157,8 +162,8 @@ def _split(store, cfg: DataConfig, val_houses: int):
 
 def _run_config(preset: DistillPreset, data_cfg: DataConfig, epochs: int | None, **model_kw):
     base = RunConfig.named(preset.model, preset=data_cfg.preset)
-    model = dataclasses.replace(base.model, **model_kw)
-    recipe = base.train
+    model = dataclasses.replace(base.model, **{**dict(preset.model_options), **model_kw})
+    recipe = dataclasses.replace(base.train, augment=preset.augment)
     if epochs is not None or preset.epochs is not None:
         recipe = dataclasses.replace(recipe, epochs=epochs or preset.epochs)
     return RunConfig(model=model, train=recipe, preset=data_cfg.preset)
