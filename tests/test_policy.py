@@ -226,3 +226,25 @@ def test_nothing_to_visit_gives_the_empty_plan(policy):
         sol = policy.plan(inst)
         assert [n for n in np.asarray(sol.nodes) if n >= 0] == [0]
         assert float(sol.reward) == 0.0 and float(sol.cost) == 0.0
+
+
+def test_fill_option_adds_reward_within_budget(policy):
+    batch = stack(instances(range(30, 36)))
+    plain = policy.plan(batch)
+    filled = policy.plan(batch, fill=True)
+    for i in range(6):
+        inst = jax.tree_util.tree_map(lambda x, i=i: x[i], batch)
+        assert_matches_evaluate(inst, jax.tree_util.tree_map(lambda x, i=i: x[i], filled))
+        assert float(filled.reward[i]) >= float(plain.reward[i]) - 1e-5
+
+
+def test_shipped_demo_policy_plans_map_instances():
+    """``StrategicPolicy.load()`` with no argument: the pretrained demo model in the package
+    plans navigation-sized instances (N = 76, K = 16) feasibly and beats an empty plan."""
+    shipped = StrategicPolicy.load()
+    assert (shipped.num_nodes, shipped.num_sets) == (76, 16)
+    insts = [random_instance(s, num_sets=15, viewpoints=5, masked_sets=s % 3) for s in range(4)]
+    sol = shipped.plan(stack(insts))
+    for i, inst in enumerate(insts):
+        assert_matches_evaluate(inst, jax.tree_util.tree_map(lambda x, i=i: x[i], sol))
+    assert float(np.mean(np.asarray(sol.reward))) > 0
