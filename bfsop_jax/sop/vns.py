@@ -51,6 +51,7 @@ from bfsop_jax.sop.types import Solution, SOPInstance, evaluate, validate
 __all__ = ["SetView", "set_view", "solve_vns", "solve_greedy", "greedy_solution", "empty_solution"]
 
 _MAX_BLOCK_BYTES = 2 << 30
+RESTART_MAX_SETS = 24  # the intensification restarts from random orders only up to this size
 
 
 @dataclasses.dataclass(frozen=True)
@@ -703,15 +704,23 @@ def _tighten(
 
 
 def _shortest_order(
-    view: SetView, perm: np.ndarray, m: int, rng: np.random.Generator, restarts: int
+    view: SetView,
+    perm: np.ndarray,
+    m: int,
+    rng: np.random.Generator,
+    restarts: int,
+    deadline: float = np.inf,
 ) -> tuple[np.ndarray, int, float]:
     """A short tour through the visited sets of ``perm``: order-only local search from the
-    given order and from ``restarts`` random orders of the same sets; the shortest wins."""
+    given order and from ``restarts`` random orders of the same sets (no new start after
+    ``deadline``, a ``time.perf_counter`` value); the shortest wins."""
     starts = [perm]
-    for _ in range(restarts):
+    for _ in range(restarts if m <= RESTART_MAX_SETS else 0):
         starts.append(np.concatenate([rng.permutation(perm[:m]), perm[m:]]))
     best = None
-    for order in starts:
+    for r, order in enumerate(starts):
+        if r > 0 and time.perf_counter() > deadline:
+            break
         cand, cm = _tighten(view, order, m, rng)
         length = float(_score(view, cand[None], np.array([cm]))[1][0])
         if best is None or length < best[2]:
@@ -730,6 +739,7 @@ def _squeeze(
     tries: int,
     restarts: int = 3,
     ejections: int = 2,
+    deadline: float = np.inf,
 ) -> tuple[np.ndarray, int] | None:
     """Intensification for tight budgets: a better set selection that needs a new order.
 
@@ -739,7 +749,8 @@ def _squeeze(
     search a short order for the enlarged selection (order-only local search from the
     current order and ``restarts`` random ones); if it still does not fit, eject one of
     the ``ejections`` lower-reward visited sets whose removal shortens that tour most and
-    search again. Returns the first feasible selection with more reward, or None.
+    search again. Returns the first feasible selection with more reward, or None (also
+    when ``deadline``, a ``time.perf_counter`` value, has passed).
     """
     t = _tables(view, perm[None], np.array([m]))
     into, out_of = _gap_tables(view, t)
@@ -752,10 +763,10 @@ def _squeeze(
     best = cand[best_gap, np.arange(cand.shape[1])]
     reward = view.reward
     for s in np.argsort(best, kind="stable")[:tries]:
-        if not np.isfinite(best[s]):
+        if not np.isfinite(best[s]) or time.perf_counter() > deadline:
             break
         trial, tm = _apply(perm, m, "insert", int(best_gap[s]), int(s))
-        trial, tm, length = _shortest_order(view, trial, tm, rng, restarts)
+        trial, tm, length = _shortest_order(view, trial, tm, rng, restarts, deadline)
         if length <= view.budget:
             return trial, tm
         others = [i for i in range(tm) if trial[i] != s and reward[trial[i]] < reward[s]]
@@ -764,7 +775,9 @@ def _squeeze(
         ejected = np.stack([np.append(np.delete(trial, i), trial[i]) for i in others])
         _, shorter = _score(view, ejected, np.full(len(others), tm - 1))
         for j in np.argsort(shorter, kind="stable")[:ejections]:
-            out, om, length = _shortest_order(view, ejected[j], tm - 1, rng, restarts)
+            if time.perf_counter() > deadline:
+                return None
+            out, om, length = _shortest_order(view, ejected[j], tm - 1, rng, restarts, deadline)
             if length <= view.budget:
                 return out, om
     return None
@@ -874,7 +887,9 @@ def solve_vns(
         squeeze: when the search stagnates, insert one more set even though the tour
             then overshoots the budget by at most this fraction, shorten it with
             order-only moves and keep it if it fits (0 disables; see docs/sop.md).
-        squeeze_tries: how many of the cheapest overshooting insertions are tried.
+        squeeze_tries: how many of the cheapest overshooting insertions are tried (random
+            order restarts only for selections of at most ``RESTART_MAX_SETS`` sets, where
+            a random order is quick to repair; ``time_limit`` also bounds it).
         return_greedy: also return the greedy initial solution.
 
     Returns:
@@ -916,7 +931,10 @@ def solve_vns(
         if it >= max_iters or it - last >= max_no_improve:
             # stagnation: before stopping, try the budget-overshoot intensification once
             # per incumbent; a success resets the no-improvement count
-            squeezed = _squeeze(view, perm, m, rng, squeeze, squeeze_tries) if squeeze else None
+            deadline = np.inf if time_limit is None else t0 + time_limit
+            squeezed = None
+            if squeeze:
+                squeezed = _squeeze(view, perm, m, rng, squeeze, squeeze_tries, deadline=deadline)
             if squeezed is not None and it < max_iters:
                 perm, m = squeezed
                 best_r, best_c = (float(x[0]) for x in _score(view, perm[None], np.array([m])))
