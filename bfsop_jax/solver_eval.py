@@ -54,6 +54,7 @@ PLANNERS: dict[str, dict[str, Any]] = {
     "transformer+2opt+best_of_8": {"two_opt": True, "best_of": 8},
     "transformer+2opt+fill": {"two_opt": True, "fill": True},
     "transformer+2opt+augment+fill": {"two_opt": True, "augment": True, "fill": True},
+    "transformer+2opt+best_of_2+fill": {"two_opt": True, "best_of": 2, "fill": True},
     "transformer+2opt+best_of_4+fill": {"two_opt": True, "best_of": 4, "fill": True},
     "transformer+2opt+all": {"two_opt": True, "augment": True, "best_of": 8, "fill": True},
 }
