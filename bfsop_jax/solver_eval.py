@@ -202,7 +202,7 @@ def evaluate_solvers(
             "latency_overhead_ms_batched": on["latency_ms_batched"] - off["latency_ms_batched"],
         }
     result["_plans"] = plans  # for figures; dropped by write_json
-    result["_vns_plans"] = [s.node_list() for s in vns_sols]
+    result["_teacher"] = teacher  # (VNS solutions, ms): reusable for other models
     return result
 
 

@@ -13,8 +13,9 @@ Stages (``--stage all`` runs them in order):
    interrupted one resumes.
 2. ``train``: behaviour cloning with teacher forcing (orbax checkpoint every epoch,
    ``--resume`` continues), metrics in ``metrics.jsonl`` / ``metrics.csv`` and
-   ``training_curve.png``. With ``--ablations`` two more models are trained on the same data
-   with the same seed: without the geometric attention bias, and ``budget_aware``.
+   ``training_curve.png``. With ``--ablations`` three more models are trained on the same
+   data with the same seed: without the geometric attention bias, ``budget_aware``, and
+   without the budget mask.
 3. ``eval``: held-out instances posed the same way in held-out houses; the VNS teacher
    (reference configuration), the greedy insertion start and the Transformer (without and
    with 2-opt, with symmetry augmentation, best of 8) plan each of them. Writes
@@ -52,11 +53,11 @@ class DistillPreset:
     data: DataConfig
     val_houses: int  # the last training houses are held out for validation (model choice)
     model: str  # model / recipe preset of bfsop_jax.training
-    epochs: int | None  # None: the recipe's value
     lrs: tuple[float, ...]
-    seeds: tuple[int, ...]
     eval_houses: int  # held-out houses for the solver evaluation
-    eval_tasks: int  # tasks posed per held-out house
+    eval_tasks: int = 24  # tasks posed per held-out house
+    epochs: int | None = None  # None: the recipe's value
+    seeds: tuple[int, ...] = (0,)
     # decoder masks nodes that no longer fit the budget (END only when none does); the
     # network itself stays budget-independent as in the paper
     model_options: tuple[tuple[str, Any], ...] = (("budget_mask", True),)
@@ -77,22 +78,16 @@ PRESETS: dict[str, DistillPreset] = {
         ),  # fmt: skip
         val_houses=4,
         model="demo",
-        epochs=None,
         lrs=(1e-3,),
-        seeds=(0,),
         eval_houses=4,
-        eval_tasks=24,
     ),
     # the paper setting (~1e5 step-level transitions; meant for a GPU and a long run)
     "paper": DistillPreset(
         data=DataConfig(preset="paper", houses=1024, houses_per_shard=8, tasks_per_house=24),
         val_houses=64,
         model="paper",
-        epochs=None,
         lrs=(1e-4,),
-        seeds=(0,),
         eval_houses=10,
-        eval_tasks=24,
     ),
     # a tiny end-to-end run for tests
     "smoke": DistillPreset(
@@ -107,11 +102,10 @@ PRESETS: dict[str, DistillPreset] = {
         ),  # fmt: skip
         val_houses=1,
         model="tiny",
-        epochs=2,
         lrs=(1e-3,),
-        seeds=(0,),
         eval_houses=1,
         eval_tasks=6,
+        epochs=2,
     ),
 }
 
@@ -136,7 +130,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--tasks", type=int, default=None, help="override: virtual tasks per house")
     ap.add_argument("--epochs", type=int, default=None, help="override: training epochs")
     ap.add_argument("--resume", action="store_true", help="continue an interrupted training run")
-    ap.add_argument("--ablations", action="store_true", help="also train the two ablations")
+    ap.add_argument("--ablations", action="store_true", help="also train the ablations")
     ap.add_argument("--eval-tasks", type=int, default=None, help="override: tasks per eval house")
     ap.add_argument("--no-progress", action="store_true")
     return ap.parse_args(argv)
@@ -229,10 +223,7 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     result["date"] = time.strftime("%Y-%m-%d")
     ablation_rows = None
     if ablations:
-        teacher = (
-            [_solution_from(instances, i, p) for i, p in enumerate(result["_vns_plans"])],
-            [result["planners"]["vns"]["latency_ms_single"]] * n,
-        )
+        teacher = result["_teacher"]
         ablation_rows = {}
         for name, info in ablations.items():
             pol = (
@@ -249,6 +240,7 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
                                                                  "reward_ratio")}}  # fmt: skip
         result["ablations"] = ablation_rows
     out.mkdir(parents=True, exist_ok=True)
+    _figures(policy, instances, result, out)
     solver_eval.write_json(result, out / "solver_eval.json")
     header = (
         f"# Distillation results ({args.preset})\n\nHeld-out houses {lo}..{hi - 1}, "
@@ -256,23 +248,14 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     )
     text = solver_eval.write_tables(result, out / "tables.md", ablation_rows, header)
     print(text)
-    _figures(policy, instances, result, out)
     return result
 
 
-def _solution_from(instances, i: int, nodes: list[int]):
-    from bfsop_jax.sop import evaluate
-    from bfsop_jax.sop.types import Solution
-
-    reward, cost, _ = evaluate(solver_eval.take(instances, i), nodes)
-    return Solution(nodes=np.asarray(nodes, np.int32), reward=np.float32(reward),
-                    cost=np.float32(cost))  # fmt: skip
-
-
 def _figures(policy, instances, result: dict, out: Path) -> None:
+    """The tour comparison and the distance-mass figures (the mass is added to ``result``)."""
     from bfsop_jax.sop import evaluate
 
-    vns_plans = result["_vns_plans"]
+    vns_plans = [s.node_list() for s in result["_teacher"][0]]
     model_plans = result["_plans"]["transformer+2opt"]
     # the instance where the teacher visits the most sets (a readable, non-trivial tour)
     i = int(np.argmax([len(p) for p in vns_plans]))
@@ -287,7 +270,6 @@ def _figures(policy, instances, result: dict, out: Path) -> None:
     solver_eval.plot_tour_comparison(inst, plans, out / "tour_comparison.png")
     mass = solver_eval.decoder_distance_mass(policy, instances)
     result["distance_mass"] = {"all_steps": mass[0].tolist(), "first_step": mass[1].tolist()}
-    solver_eval.write_json(result, out / "solver_eval.json")
     solver_eval.plot_distance_mass(mass, out / "decoder_distance_mass.png")
 
 

@@ -108,10 +108,8 @@ def fits_budget(
     n = instance.set_id.shape[-1]
     step = jnp.take_along_axis(instance.cost, last[..., None], axis=1)  # [B, S, N]
     end = jnp.clip(instance.end, 0)
-    to_end = jnp.take_along_axis(
-        instance.cost, jnp.broadcast_to(end[:, None, None], (end.shape[0], n, 1)), axis=2
-    )[..., 0]
-    to_end = jnp.where(instance.end[:, None] >= 0, to_end, 0.0)  # [B, N]
+    to_end = jax.vmap(lambda c, e: c[:, e])(instance.cost, end)  # [B, N]: node -> end
+    to_end = jnp.where(instance.end[:, None] >= 0, to_end, 0.0)
     left = instance.budget[:, None, None] - travelled[..., None]
     tol = 1e-5 * jnp.maximum(1.0, instance.budget)[:, None, None]
     nodes = allowed[..., :n] & (step + to_end[:, None, :] <= left + tol)
