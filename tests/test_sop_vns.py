@@ -106,3 +106,56 @@ def test_path_to_a_goal_node():
     sol = solve_vns(inst)
     assert_valid_plan(inst, sol)
     assert sol.node_list() == [0, 1, 2, 4, 3] and float(sol.cost) == 5.0
+
+
+@SETTINGS
+@given(small_instances(max_sets=6))
+def test_fill_keeps_the_selection_respects_bans_and_fits(inst):
+    view = V.set_view(inst)
+    if view.num_sets == 0:
+        return
+    rng = np.random.default_rng(0)
+    width = 4
+    perm = np.stack([rng.permutation(view.num_sets) for _ in range(width)])
+    m = np.zeros(width, int)
+    m = V._fit(view, perm, m)  # feasible prefixes
+    banned = rng.random((width, view.num_sets)) < 0.3
+    before = V._visited_mask(view, perm, m)
+    banned &= ~before
+    out, om = V._fill(view, perm, m, banned, rng, slack=0.3)
+    after = V._visited_mask(view, out, om)
+    assert (after >= before).all()
+    assert not (after & banned).any()
+    assert (V._score(view, out, om)[1] <= view.budget + 1e-9).all()
+    # nothing left that fits by a plain insertion
+    t = V._tables(view, out, om)
+    into, out_of = V._gap_tables(view, t)
+    cost = V._lowest(into + out_of)
+    gaps = np.arange(cost.shape[1])[None, :, None] <= om[:, None, None]
+    free = (~after & ~banned)[:, None, :]
+    assert not ((cost <= view.budget) & gaps & free).any()
+
+
+def test_recreate_makes_a_two_out_one_in_move():
+    """Two cheap neighbours (reward 1 each) block a far set worth 3: only removing both
+    and refilling reaches it; single moves lower the reward or overshoot the budget."""
+    xs = np.array([0.0, 1.0, 1.05, -2.0])
+    cost = np.abs(xs[:, None] - xs[None])
+    inst = SOPInstance.create(cost, [0, 1, 2, 3], [0.0, 1.0, 1.0, 3.0], 0, 0, 4.5)
+    view = V.set_view(inst)
+    perm, m = np.array([0, 1, 2]), 2  # visits the two neighbours: reward 2, cost 2.1
+    rng = np.random.default_rng(0)
+    for which in (1, 2):
+        p, pm = V._local_search(view, perm[None], np.array([m]), which, rng, reversals=True)
+        assert float(V._score(view, p, pm)[0][0]) == 2.0  # a local optimum
+    p, pm, reward, length = V._recreate(view, perm, m, rng, slack=0.3)
+    assert reward == 3.0 and length == 4.0 and list(p[:pm]) == [2]
+
+
+def test_recreate_recovers_a_benchmark_optimum(shared):
+    """20kroD100 T20 p2: the optimum swaps two visited sets for one (2180 against 2120)."""
+    from bfsop_jax.sop import read_sop
+
+    inst = read_sop(shared("sop", "instances", "20kroD100_RND_T20_p2.sop"))
+    assert float(solve_vns(inst, seed=0, recreate=False).reward) < 2180
+    assert float(solve_vns(inst, seed=0).reward) == 2180

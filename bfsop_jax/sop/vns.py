@@ -17,6 +17,11 @@ Follows the published VNS-SOP (Penicka, Faigl & Saska 2019):
 * stops after ``max_iters`` iterations, ``max_no_improve`` iterations without improvement
   or ``time_limit`` seconds. Deterministic for a seed.
 
+Additions for tight budgets (docs/sop.md): segment reversals in local search 2, and two
+intensifications run when the stop rule fires (a success counts as an improvement):
+insertion of a set that overshoots the budget followed by an order-only repair
+(:func:`_squeeze`), then ruin and recreate of one or two visited sets (:func:`_recreate`).
+
 Vectorisation (why it is not a line-by-line port): instead of drawing n^2 random trials and
 evaluating each with a Python-level DP, every move of a neighbourhood is evaluated exactly
 in one batched min-plus pass from the DP tables (forward / backward tables, tables of the
@@ -783,6 +788,92 @@ def _squeeze(
     return None
 
 
+def _fill(
+    view: SetView,
+    perm: np.ndarray,
+    m: np.ndarray,
+    banned: np.ndarray,
+    rng: np.random.Generator | None = None,
+    slack: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy insertion on a batch (the rule of :func:`greedy_solution`) until nothing
+    fits; the sets marked in ``banned`` [W, M] are never inserted.
+
+    With ``slack`` an insertion may overshoot the budget by that fraction: the tour is then
+    shortened with order-only moves (random, ``rng`` needed) and the insertion undone (and
+    the set banned for that row) when it still does not fit.
+    """
+    perm, m, banned = perm.copy(), m.copy(), banned.copy()
+    gaps = np.arange(view.num_sets + 1)
+    active = np.ones(perm.shape[0], bool)
+    while active.any():
+        idx = np.flatnonzero(active)
+        t = _tables(view, perm[idx], m[idx])
+        into, out_of = _gap_tables(view, t)
+        cost = _lowest(into + out_of)  # [W, L-1, M]
+        ok = cost <= view.budget * (1.0 + slack)
+        ok &= gaps[None, : cost.shape[1], None] <= t.m[:, None, None]
+        ok &= ~(_visited_mask(view, perm[idx], m[idx]) | banned[idx])[:, None, :]
+        with np.errstate(invalid="ignore"):  # inf - inf: a ruined tour cut off by inf edges
+            ratio = (cost - t.length[:, None, None]) / view.reward[None, None, : view.num_sets]
+        ratio = np.where(ok, ratio, np.inf).reshape(len(idx), -1)
+        pick = np.argmin(ratio, axis=1)
+        found = np.isfinite(ratio[np.arange(len(idx)), pick])
+        over = cost.reshape(len(idx), -1)[np.arange(len(idx)), pick] > view.budget
+        active[idx[~found]] = False
+        idx, pick, over = idx[found], pick[found], over[found]
+        before, before_m = perm[idx].copy(), m[idx].copy()
+        for w, flat in zip(idx.tolist(), pick.tolist(), strict=True):
+            gap, s = divmod(flat, view.num_sets)
+            perm[w], m[w] = _apply(perm[w], int(m[w]), "insert", gap, s)
+        if over.any():
+            rows = idx[over]
+            p, pm = perm[rows], m[rows]
+            for which in (1, 2):
+                p, pm = _local_search(view, p, pm, which, rng, reversals=True, order_only=True)
+            fits = _score(view, p, pm)[1] <= view.budget
+            perm[rows] = np.where(fits[:, None], p, before[over])
+            m[rows] = np.where(fits, pm, before_m[over])
+            failed = rows[~fits]
+            for w, flat in zip(failed.tolist(), pick[over][~fits].tolist(), strict=True):
+                banned[w, flat % view.num_sets] = True
+    return perm, m
+
+
+def _recreate(
+    view: SetView,
+    perm: np.ndarray,
+    m: int,
+    rng: np.random.Generator,
+    slack: float,
+    rows: int = 256,
+) -> tuple[np.ndarray, int, float, float]:
+    """Ruin and recreate: compound selection changes that no single move reaches.
+
+    Removes every visited set and every pair of visited sets (a random sample of at most
+    ``rows`` of them), refills each tour greedily without the removed sets, polishes it
+    with both local searches and returns the best result (permutation, m, reward, cost).
+    """
+    ruins = [(i,) for i in range(m)] + [(i, j) for i in range(m) for j in range(i + 1, m)]
+    if len(ruins) > rows:
+        ruins = [ruins[i] for i in np.sort(rng.choice(len(ruins), rows, replace=False))]
+    perms = np.empty((len(ruins), perm.shape[0]), perm.dtype)
+    banned = np.zeros((len(ruins), view.num_sets), bool)
+    for r, out in enumerate(ruins):
+        gone = perm[list(out)]
+        perms[r] = np.concatenate([np.delete(perm[:m], out), gone, perm[m:]])
+        banned[r, gone] = True
+    ms = np.array([m - len(out) for out in ruins])
+    for which in (1, 2):
+        perms, ms = _local_search(view, perms, ms, which, rng, reversals=True, order_only=True)
+    perms, ms = _fill(view, perms, ms, banned, rng, slack)
+    for which in (1, 2):
+        perms, ms = _local_search(view, perms, ms, which, rng, reversals=True)
+    rew, cost = _score(view, perms, ms)
+    j = int(np.lexsort((cost, -rew))[0])
+    return perms[j], int(ms[j]), float(rew[j]), float(cost[j])
+
+
 def _better(r1: float, c1: float, r0: float, c0: float, view: SetView) -> bool:
     eps_r, eps_l = _tolerances(view)
     return r1 > r0 + eps_r or (abs(r1 - r0) <= eps_r and c1 < c0 - eps_l)
@@ -798,20 +889,8 @@ def _score(view: SetView, perm: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, 
 def greedy_solution(view: SetView) -> tuple[np.ndarray, int]:
     """Greedy insertion by the smallest added length per unit reward: (permutation, m)."""
     msets = view.num_sets
-    perm, m = np.arange(msets), 0
-    while m < msets:
-        t = _tables(view, perm[None], np.array([m]))
-        into, out_of = _gap_tables(view, t)
-        cost = _lowest(into + out_of)[0]  # [L-1, M]
-        unvisited = ~_visited_mask(view, perm[None], np.array([m]))[0]
-        ok = (cost <= view.budget) & unvisited[None, :]
-        ok[m + 1 :] = False
-        if not ok.any():
-            break
-        ratio = np.where(ok, (cost - t.length[0]) / view.reward[None, :msets], np.inf)
-        gap, s = np.unravel_index(int(np.argmin(ratio)), ratio.shape)
-        perm, m = _apply(perm, m, "insert", int(gap), int(s))
-    return perm, m
+    perm, m = _fill(view, np.arange(msets)[None], np.zeros(1, int), np.zeros((1, msets), bool))
+    return perm[0], int(m[0])
 
 
 def _plan(view: SetView, perm: np.ndarray, m: int) -> list[int]:
@@ -866,8 +945,9 @@ def solve_vns(
     width: int | None = None,
     trades: bool = False,
     reversals: bool = True,
-    squeeze: float = 0.1,
+    squeeze: float = 0.3,
     squeeze_tries: int = 3,
+    recreate: bool = True,
     return_greedy: bool = False,
 ) -> Solution | tuple[Solution, Solution]:
     """Solve one SOP instance with the VNS teacher (NumPy).
@@ -886,10 +966,14 @@ def solve_vns(
             helps on tight budgets; see docs/sop.md).
         squeeze: when the search stagnates, insert one more set even though the tour
             then overshoots the budget by at most this fraction, shorten it with
-            order-only moves and keep it if it fits (0 disables; see docs/sop.md).
+            order-only moves and keep it if it fits (0 disables; see docs/sop.md). The
+            same slack bounds the insertions of ``recreate``.
         squeeze_tries: how many of the cheapest overshooting insertions are tried (random
             order restarts only for selections of at most ``RESTART_MAX_SETS`` sets, where
             a random order is quick to repair; ``time_limit`` also bounds it).
+        recreate: when the search stagnates and ``squeeze`` finds nothing, try ruin and
+            recreate: remove every visited set and pair of visited sets, refill greedily
+            without them and keep the best result if it improves (see docs/sop.md).
         return_greedy: also return the greedy initial solution.
 
     Returns:
@@ -935,6 +1019,10 @@ def solve_vns(
             squeezed = None
             if squeeze:
                 squeezed = _squeeze(view, perm, m, rng, squeeze, squeeze_tries, deadline=deadline)
+            if squeezed is None and recreate and time.perf_counter() < deadline:
+                p2, m2, r2, c2 = _recreate(view, perm, m, rng, squeeze)
+                if _better(r2, c2, best_r, best_c, view):
+                    squeezed = p2, m2
             if squeezed is not None and it < max_iters:
                 perm, m = squeezed
                 best_r, best_c = (float(x[0]) for x in _score(view, perm[None], np.array([m])))
