@@ -788,6 +788,43 @@ def _squeeze(
     return None
 
 
+def _repair(
+    view: SetView,
+    perm: np.ndarray,
+    m: np.ndarray,
+    rng: np.random.Generator,
+    restarts: int,
+    restart_rows: int = 32,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shorten a batch of over-budget tours with order-only local search from the given
+    orders; the ``restart_rows`` rows that still overshoot least (and visit at most
+    ``RESTART_MAX_SETS`` sets) search again from ``restarts`` random orders of the same
+    sets, side by side. Returns the shortest (perm, m) per row and whether it fits."""
+    for which in (1, 2):
+        perm, m = _local_search(view, perm, m, which, rng, reversals=True, order_only=True)
+    length = _score(view, perm, m)[1]
+    retry = np.flatnonzero((length > view.budget) & (m <= RESTART_MAX_SETS))
+    retry = retry[np.argsort(length[retry], kind="stable")[:restart_rows]]
+    if restarts and retry.size:
+        n, msets = retry.size, perm.shape[1]
+        pos = np.arange(msets)[None, :]
+        pm = np.tile(m[retry], restarts)
+        keys = np.where(pos < pm[:, None], rng.random((restarts * n, msets)), 1.0 + pos)
+        base = np.tile(perm[retry], (restarts, 1))
+        p = np.take_along_axis(base, np.argsort(keys, axis=1), axis=1)
+        for which in (1, 2):
+            p, pm = _local_search(view, p, pm, which, rng, reversals=True, order_only=True)
+        found = _score(view, p, pm)[1].reshape(restarts, n)
+        best = np.argmin(found, axis=0)
+        better = found[best, np.arange(n)] < length[retry]
+        take = best * n + np.arange(n)
+        perm, m, length = perm.copy(), m.copy(), length.copy()
+        perm[retry[better]] = p[take[better]]
+        m[retry[better]] = pm[take[better]]
+        length[retry[better]] = found[best, np.arange(n)][better]
+    return perm, m, length <= view.budget
+
+
 def _fill(
     view: SetView,
     perm: np.ndarray,
@@ -795,13 +832,14 @@ def _fill(
     banned: np.ndarray,
     rng: np.random.Generator | None = None,
     slack: float = 0.0,
+    restarts: int = 3,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy insertion on a batch (the rule of :func:`greedy_solution`) until nothing
     fits; the sets marked in ``banned`` [W, M] are never inserted.
 
     With ``slack`` an insertion may overshoot the budget by that fraction: the tour is then
-    shortened with order-only moves (random, ``rng`` needed) and the insertion undone (and
-    the set banned for that row) when it still does not fit.
+    shortened with order-only moves (random, ``rng`` needed; see :func:`_repair`) and the
+    insertion undone (and the set banned for that row) when it still does not fit.
     """
     perm, m, banned = perm.copy(), m.copy(), banned.copy()
     gaps = np.arange(view.num_sets + 1)
@@ -828,10 +866,7 @@ def _fill(
             perm[w], m[w] = _apply(perm[w], int(m[w]), "insert", gap, s)
         if over.any():
             rows = idx[over]
-            p, pm = perm[rows], m[rows]
-            for which in (1, 2):
-                p, pm = _local_search(view, p, pm, which, rng, reversals=True, order_only=True)
-            fits = _score(view, p, pm)[1] <= view.budget
+            p, pm, fits = _repair(view, perm[rows], m[rows], rng, restarts)
             perm[rows] = np.where(fits[:, None], p, before[over])
             m[rows] = np.where(fits, pm, before_m[over])
             failed = rows[~fits]
@@ -847,6 +882,7 @@ def _recreate(
     rng: np.random.Generator,
     slack: float,
     rows: int = 256,
+    restarts: int = 3,
 ) -> tuple[np.ndarray, int, float, float]:
     """Ruin and recreate: compound selection changes that no single move reaches.
 
@@ -866,7 +902,7 @@ def _recreate(
     ms = np.array([m - len(out) for out in ruins])
     for which in (1, 2):
         perms, ms = _local_search(view, perms, ms, which, rng, reversals=True, order_only=True)
-    perms, ms = _fill(view, perms, ms, banned, rng, slack)
+    perms, ms = _fill(view, perms, ms, banned, rng, slack, restarts)
     for which in (1, 2):
         perms, ms = _local_search(view, perms, ms, which, rng, reversals=True)
     rew, cost = _score(view, perms, ms)
