@@ -693,6 +693,15 @@ def _local_search(
     return perm, m
 
 
+def _reorder(
+    view: SetView, perm: np.ndarray, m: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both local searches with order-only moves (budget ignored) on a batch."""
+    for which in (1, 2):
+        perm, m = _local_search(view, perm, m, which, rng, reversals=True, order_only=True)
+    return perm, m
+
+
 def _tighten(
     view: SetView, perm: np.ndarray, m: int, rng: np.random.Generator
 ) -> tuple[np.ndarray, int]:
@@ -700,8 +709,7 @@ def _tighten(
     batch, ms = perm[None].copy(), np.array([m])
     length = float(_score(view, batch, ms)[1][0])
     while True:
-        for which in (1, 2):
-            batch, ms = _local_search(view, batch, ms, which, rng, reversals=True, order_only=True)
+        batch, ms = _reorder(view, batch, ms, rng)
         new = float(_score(view, batch, ms)[1][0])
         if not new < length - _tolerances(view)[1]:
             return batch[0], int(ms[0])
@@ -800,8 +808,7 @@ def _repair(
     orders; the ``restart_rows`` rows that still overshoot least (and visit at most
     ``RESTART_MAX_SETS`` sets) search again from ``restarts`` random orders of the same
     sets, side by side. Returns the shortest (perm, m) per row and whether it fits."""
-    for which in (1, 2):
-        perm, m = _local_search(view, perm, m, which, rng, reversals=True, order_only=True)
+    perm, m = _reorder(view, perm, m, rng)
     length = _score(view, perm, m)[1]
     retry = np.flatnonzero((length > view.budget) & (m <= RESTART_MAX_SETS))
     retry = retry[np.argsort(length[retry], kind="stable")[:restart_rows]]
@@ -812,8 +819,7 @@ def _repair(
         keys = np.where(pos < pm[:, None], rng.random((restarts * n, msets)), 1.0 + pos)
         base = np.tile(perm[retry], (restarts, 1))
         p = np.take_along_axis(base, np.argsort(keys, axis=1), axis=1)
-        for which in (1, 2):
-            p, pm = _local_search(view, p, pm, which, rng, reversals=True, order_only=True)
+        p, pm = _reorder(view, p, pm, rng)
         found = _score(view, p, pm)[1].reshape(restarts, n)
         best = np.argmin(found, axis=0)
         better = found[best, np.arange(n)] < length[retry]
@@ -900,8 +906,7 @@ def _recreate(
         perms[r] = np.concatenate([np.delete(perm[:m], out), gone, perm[m:]])
         banned[r, gone] = True
     ms = np.array([m - len(out) for out in ruins])
-    for which in (1, 2):
-        perms, ms = _local_search(view, perms, ms, which, rng, reversals=True, order_only=True)
+    perms, ms = _reorder(view, perms, ms, rng)
     perms, ms = _fill(view, perms, ms, banned, rng, slack, restarts)
     for which in (1, 2):
         perms, ms = _local_search(view, perms, ms, which, rng, reversals=True)
