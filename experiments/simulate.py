@@ -21,7 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from bfsop_jax import viz
-from bfsop_jax.agents import fbe_action, rollout
+from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
 from bfsop_jax.config import EVAL_SEED_START, get_preset
 from bfsop_jax.env import reset
 from bfsop_jax.navigation.frontiers import frontier_clusters
@@ -60,14 +60,16 @@ def main(argv: list[str] | None = None) -> dict:
     budget = float(state.budget)
     start = np.asarray(state.pose)[None]
     chunk = 10
-    run_chunk = jax.jit(lambda s: rollout(s, fbe_action, preset, chunk))
-    n_chunks = math.ceil(3 * budget / (preset.micro_steps * preset.move_step_m) / chunk)
+    fbe = FBE()
+    memory = fbe.init(state, preset)
+    run_chunk = jax.jit(lambda s, m: continue_rollout(s, m, fbe, preset, chunk))
+    n_chunks = math.ceil(max_macro_steps(budget, preset) / chunk)
     trajectories = []
-    with tqdm(total=round(budget, 1), desc="exploring", unit="m") as bar:
+    with tqdm(total=math.ceil(budget), desc="exploring", unit="m") as bar:
         for _ in range(n_chunks):
-            state, traj = run_chunk(state)
+            state, memory, traj = run_chunk(state, memory)
             trajectories.append(jax.device_get(traj))
-            bar.update(round(float(state.path_length) - bar.n, 1))
+            bar.update(int(float(state.path_length)) - bar.n)
             if bool(state.done) or not bool(traj.active[-1]):
                 break
 

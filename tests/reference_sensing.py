@@ -98,7 +98,11 @@ def reference_hit_dist(occupied: np.ndarray, pose, preset) -> tuple[np.ndarray, 
 
 
 def reference_observe(house, pose, preset) -> dict[str, np.ndarray]:
-    """In-view set, distances and areas of every object slot, one object at a time."""
+    """In-view set, distances and areas of every object slot, one object at a time.
+
+    Follows the integer rule of :func:`bfsop_jax.sensing.detection.observe` (offsets in
+    1/256 cell, field of view between the outermost rays' directions) with Python ints.
+    """
     occupied = np.asarray(house.occupied)
     h, w = occupied.shape
     c = preset.cell_size
@@ -114,30 +118,65 @@ def reference_observe(house, pose, preset) -> dict[str, np.ndarray]:
     in_view = np.zeros(m, bool)
     dist = np.zeros(m)
     area = np.zeros(m)
+    g = 256  # geometry units per cell
+    lim = (math.ceil(preset.sensor_range_m / c - 1e-6) + 2) * g
+    range_u = round(preset.sensor_range_m / c * g)
+    unit = np.float32(c / g)
+    hq = heading_unit(heading)
+    offs = (
+        [0]
+        if preset.n_rays == 1
+        else [
+            round(
+                (
+                    -math.radians(preset.fov_deg) / 2
+                    + r * math.radians(preset.fov_deg) / (preset.n_rays - 1)
+                )
+                * A
+                / (2 * math.pi)
+            )
+            for r in (0, preset.n_rays - 1)
+        ]
+    )
+    rsx, rsy = _STEPS[(hq + offs[0]) % A]
+    lsx, lsy = _STEPS[(hq + offs[-1]) % A]
     for i in range(m):
-        dx, dy = xy[i, 0] - x, xy[i, 1] - y
-        d = math.hypot(dx, dy)
+        ox, oy = fixed_point(xy[i, 0], w * c, c), fixed_point(xy[i, 1], h * c, c)
+        rx = min(max((ox - ax) >> 8, -lim), lim)
+        ry = min(max((oy - ay) >> 8, -lim), lim)
+        d2 = rx * rx + ry * ry
+        d = float(np.sqrt(np.float32(d2)) * unit)
         dist[i] = d
         if cats[i] < 0:
             continue
-        area[i] = (preset.focal_px * size[i] / max(d, 1e-3)) ** 2
-        bearing = (math.atan2(dy, dx) - heading + math.pi) % (2 * math.pi) - math.pi
-        if d > 0 and abs(bearing) > math.radians(preset.fov_deg) / 2:
+        d2_m = max(np.float32(d2) * (unit * unit), np.float32(1e-6))
+        fs = np.float32(preset.focal_px) * np.float32(size[i])
+        area[i] = (fs * fs) / d2_m
+        c_right = rsx * ry - rsy * rx
+        c_left = rx * lsy - ry * lsx
+        if not (c_right >= 0 and c_left >= 0):
             continue
-        if d > preset.sensor_range_m:
+        if d2 > range_u * range_u:
             continue
-        ox, oy = fixed_point(xy[i, 0], w * c, c), fixed_point(xy[i, 1], h * c, c)
-        t_first = math.inf
+        j_first = n + 1
         for j in range(n + 1):
             row = (ay + (oy - ay) * j // n) // Q
             col = (ax + (ox - ax) * j // n) // Q
             if not (0 <= row < h and 0 <= col < w) or occupied[row, col]:
-                t_first = j * d / n
+                j_first = j
                 break
-        half_diag = math.hypot(*ext[i])
+
+        def half_diag(k):
+            ex, ey = (min(round(float(np.float32(e) * np.float32(g / c))), 2**14) for e in ext[k])
+            return float(np.sqrt(np.float32(ex * ex + ey * ey)) * unit)
+
+        slack = half_diag(i)
         if parent[i] >= 0:
-            half_diag = max(half_diag, math.hypot(*ext[parent[i]]))
-        in_view[i] = t_first >= d - (half_diag + c)
+            slack = max(slack, half_diag(parent[i]))
+        slack = float(np.float32(slack) + np.float32(c))
+        in_view[i] = np.float32(max(n - j_first, 0)) * np.float32(d) <= np.float32(n) * np.float32(
+            slack
+        )
     return {"in_view": in_view, "distance": dist, "area_px": area}
 
 

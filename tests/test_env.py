@@ -57,18 +57,19 @@ def test_straight_motion_and_exact_budget_gate():
     state = reset_jit(jax.random.key(0), empty_house(), 0, SMOKE, PRIOR, 3.3)
     state = at(state, 2.1, 6.1)
     action = make_action(jnp.asarray([10.1, 6.1]))
-    state, info = step_jit(state, action, SMOKE)
-    k = SMOKE.micro_steps
-    np.testing.assert_allclose(float(state.path_length), k * SMOKE.move_step_m, atol=1e-5)
-    np.testing.assert_allclose(np.asarray(state.pose[:2]), [2.1 + k * 0.25, 6.1], atol=1e-4)
-    np.testing.assert_allclose(float(info.travelled), float(state.path_length), atol=1e-5)
-    assert not bool(state.done)
+    k, pc = SMOKE.micro_steps, SMOKE.plan_cell_size
+    for n in (1, 2):  # one planning cell per motion step
+        state, info = step_jit(state, action, SMOKE)
+        np.testing.assert_allclose(float(state.path_length), n * k * pc, atol=1e-5)
+        np.testing.assert_allclose(np.asarray(state.pose[:2]), [2.1 + n * k * pc, 6.1], atol=1e-5)
+        assert float(state.pose[2]) == 0.0 and not bool(state.done)
+    np.testing.assert_allclose(float(info.travelled), k * pc, atol=1e-5)
 
     state, info = step_jit(state, action, SMOKE)
     assert float(state.path_length) == pytest.approx(3.3, abs=1e-6)  # the gate is exact
     assert bool(state.done)
-    np.testing.assert_allclose(float(state.pose[0]), 2.1 + 3.3, atol=1e-4)
-    assert int(info.moved.sum()) == int(np.ceil((3.3 - 2.0) / 0.25))
+    np.testing.assert_allclose(float(state.pose[0]), 2.1 + 3.3, atol=1e-5)  # half a cell
+    assert int(info.moved.sum()) == 1
 
     # A finished episode does not move any more.
     again, info = step_jit(state, action, SMOKE)
@@ -89,12 +90,15 @@ def test_arrival_and_path_length_equal_polyline_length():
         if bool(info.arrived):
             break
     assert bool(info.arrived)
-    np.testing.assert_allclose(np.asarray(state.pose[:2]), [5.1, 7.3], atol=0.15)
+    np.testing.assert_allclose(np.asarray(state.pose[:2]), [5.1, 7.3], atol=1e-5)
     assert float(state.path_length) == pytest.approx(total, abs=1e-4)
-    # Each motion step is at most move_step_m long, and positions never jump.
+    # Every motion step is one move between neighbouring cell centres.
     seg = np.linalg.norm(np.diff(np.stack(poses), axis=0), axis=1)
-    assert np.all(seg <= SMOKE.move_step_m + 1e-5)
-    assert total >= np.linalg.norm(np.array([3.0, 5.2])) - 1e-4  # never shorter than straight
+    pc = SMOKE.plan_cell_size
+    assert np.all(np.isclose(seg, pc, atol=1e-5) | np.isclose(seg, pc * np.sqrt(2), atol=1e-5))
+    np.testing.assert_allclose(seg.sum(), total, atol=1e-4)
+    # The shortest 8-connected path over 26 rows and 15 columns: 15 diagonal, 11 straight.
+    np.testing.assert_allclose(total, 15 * pc * np.sqrt(2) + 11 * pc, atol=1e-4)
 
 
 def _viewpoint_for(house: House, target: int) -> np.ndarray:

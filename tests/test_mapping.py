@@ -99,7 +99,7 @@ def random_poses(rng: np.random.Generator, occ: np.ndarray, preset, n: int) -> n
 
 
 def test_step_table_matches_reference():
-    np.testing.assert_array_equal(mapping._step_table(), np.asarray(step_table(), np.int32))
+    np.testing.assert_array_equal(mapping.step_table(), np.asarray(step_table(), np.int32))
 
 
 @pytest.mark.parametrize(
@@ -257,3 +257,33 @@ def test_bad_inputs_raise_clear_errors():
         cast_rays(occ, pose, dataclasses.replace(SMOKE, n_rays=0))
     with pytest.raises(ValueError, match="Preset"):
         cast_rays(occ, pose, "smoke")
+
+
+def test_heading_units_round_trip():
+    units = jnp.arange(mapping.ANGLE_UNITS, dtype=jnp.int32)
+    heading = mapping.heading_from_units(units)
+    assert float(heading.min()) >= -np.float32(math.pi) and float(heading.max()) < math.pi
+    np.testing.assert_array_equal(np.asarray(mapping.quantised_heading(heading)), np.asarray(units))
+
+
+def test_bearing_units_is_the_best_aligned_ray_direction():
+    """The integer search finds the globally best-aligned unit (ties: lowest), exactly."""
+    table = np.asarray(mapping.step_table(), np.int64)
+    rng = np.random.default_rng(0)
+    vecs = np.concatenate(
+        [
+            rng.normal(size=(40, 2)) * rng.choice([0.05, 1.0, 6.0], (40, 1)),
+            [[1, 0], [0, -2], [0, 0]],
+        ]
+    ).astype(np.float32)
+    got = np.asarray(jax.jit(jax.vmap(mapping.bearing_units))(jnp.asarray(vecs)))
+    for v, g in zip(vecs, got, strict=True):
+        mm = np.clip(np.round(v.astype(np.float32) * np.float32(1000.0)), -16000, 16000)
+        dot = table @ mm.astype(np.int64)
+        assert g == int(np.flatnonzero(dot == dot.max())[0]), v
+        if np.any(v != 0):
+            err = (g * 2 * math.pi / mapping.ANGLE_UNITS - math.atan2(v[1], v[0])) % (2 * math.pi)
+            # good to ~0.3 degrees (the table's integer rounding) plus 1 mm over the length
+            assert min(err, 2 * math.pi - err) < 6e-3 + 1.0 / np.linalg.norm(mm)
+    single = [int(mapping.bearing_units(jnp.asarray(v))) for v in vecs[:5]]
+    np.testing.assert_array_equal(single, got[:5])

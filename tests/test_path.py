@@ -1,4 +1,4 @@
-"""Path following on a distance field, and the traversability gate."""
+"""Motion on the cell lattice: descent of a distance field, moves, and the blocking rules."""
 
 from __future__ import annotations
 
@@ -12,13 +12,19 @@ import pytest
 
 from bfsop_jax.config import get_preset
 from bfsop_jax.navigation import (
-    advance,
+    NEIGHBOURS,
+    cell_blocked,
     distance_field,
-    is_traversable,
+    motion_blocked,
+    move_headings,
+    move_lengths,
+    next_cell,
     plan_cell_to_xy,
+    planning_blocked,
     true_blocked,
     xy_to_plan_cell,
 )
+from bfsop_jax.sensing.mapping import ANGLE_UNITS
 
 PRESET = get_preset("smoke")
 PC = PRESET.plan_cell_size
@@ -40,140 +46,125 @@ BLOCKED = true_blocked(OCC, PRESET)
 GOAL = jnp.array([13.0, 9.0], jnp.float32)  # right room, far from the door
 FIELD = distance_field(BLOCKED, GOAL, PRESET)
 
-_advance = jax.jit(advance, static_argnums=3)
+_next = jax.jit(next_cell, static_argnums=2)
 
 
-def walk(xy, step=PRESET.move_step_m, max_calls=500):
-    """Call advance until arrival; returns (positions, travelled per call, arrived)."""
-    xy = jnp.asarray(xy, jnp.float32)
-    poses, lengths = [np.asarray(xy)], []
-    for _ in range(max_calls):
-        xy, travelled, arrived, _ = _advance(FIELD, xy, step, PRESET)
-        poses.append(np.asarray(xy))
-        lengths.append(float(travelled))
-        assert float(travelled) <= step + 1e-6
-        if bool(arrived):
-            return np.array(poses), np.array(lengths), True
-    return np.array(poses), np.array(lengths), False
+def walk(cell, field=FIELD, max_moves=500):
+    """Descend until arrival; returns (cells visited, move indices, arrived)."""
+    cell = jnp.asarray(cell, jnp.int32)
+    cells, moves = [np.asarray(cell)], []
+    for _ in range(max_moves):
+        cell, move, at_goal, ok = _next(field, cell, PRESET)
+        if bool(at_goal) or not bool(ok):
+            return np.array(cells), np.array(moves, int), bool(at_goal)
+        cells.append(np.asarray(cell))
+        moves.append(int(move))
+    return np.array(cells), np.array(moves, int), False
 
 
-def field_at(xy):
-    c = np.asarray(xy_to_plan_cell(jnp.asarray(xy), PRESET))
-    return float(np.asarray(FIELD)[c[0], c[1]])
+def test_move_tables():
+    lengths = move_lengths(PRESET)
+    np.testing.assert_allclose(lengths[:4], PC)
+    np.testing.assert_allclose(lengths[4:], PC * math.sqrt(2), rtol=1e-6)
+    heads = move_headings() * (2 * math.pi / ANGLE_UNITS)
+    for (dr, dc), h in zip(NEIGHBOURS, heads, strict=True):
+        np.testing.assert_allclose(
+            [math.cos(h), math.sin(h)], np.array([dc, dr]) / math.hypot(dr, dc), atol=1e-3
+        )
 
 
 @pytest.mark.parametrize("start", [(2.1, 10.3), (3.0, 2.0), (7.43, 5.57)])
-def test_reaches_goal_along_the_field(start):
-    poses, lengths, arrived = walk(start)
+def test_descent_reaches_goal_along_a_shortest_path(start):
+    cell = xy_to_plan_cell(jnp.asarray(start), PRESET)
+    cells, moves, arrived = walk(cell)
     assert arrived
-    np.testing.assert_allclose(
-        poses[-1], plan_cell_to_xy(xy_to_plan_cell(GOAL, PRESET), PRESET), atol=1e-5
-    )
-    # the polyline follows the field: same length up to one planning cell
-    assert abs(lengths.sum() - field_at(start)) <= PC * math.sqrt(2) + 1e-4
-    # every step but the arriving one is exactly one motion step long
-    np.testing.assert_allclose(lengths[:-1], PRESET.move_step_m, rtol=1e-5)
-    # it never enters a blocked planning cell (it starts and stays in free space)
-    cells = np.asarray(xy_to_plan_cell(jnp.asarray(poses), PRESET))
+    np.testing.assert_array_equal(cells[-1], np.asarray(xy_to_plan_cell(GOAL, PRESET)))
+    # the move lengths add up to the field value at the start: a shortest path
+    total = move_lengths(PRESET)[moves].sum()
+    np.testing.assert_allclose(total, float(FIELD[cell[0], cell[1]]), rtol=1e-5)
+    # every move joins neighbouring cells and never enters a blocked cell
+    np.testing.assert_array_equal(cells[1:] - cells[:-1], NEIGHBOURS[moves])
     assert not np.asarray(BLOCKED)[cells[:, 0], cells[:, 1]].any()
-    # it passes the door
-    assert (poses[:, 1] < 2.0).any()
+    xy = np.asarray(plan_cell_to_xy(jnp.asarray(cells), PRESET))
+    assert (xy[:, 1] < 2.0).any()  # it passes the door
 
 
-def test_from_cell_centre_length_equals_field():
-    start = plan_cell_to_xy(jnp.array([40, 10]), PRESET)
-    _, lengths, arrived = walk(start, step=100.0, max_calls=1)  # one call, enough moves?
-    assert not arrived  # default max_moves covers one motion step only
-    xy, travelled, arrived, _ = jax.jit(advance, static_argnums=(3, 4))(
-        FIELD, start, 100.0, PRESET, 400
-    )
-    assert bool(arrived)
-    np.testing.assert_allclose(float(travelled), field_at(start), rtol=1e-5)
-
-
-def test_heading_is_direction_of_motion():
-    xy = jnp.array([3.0, 9.0], jnp.float32)
-    new_xy, travelled, _, heading = _advance(FIELD, xy, 0.1, PRESET)
-    d = np.asarray(new_xy - xy)
-    np.testing.assert_allclose(float(travelled), 0.1, rtol=1e-5)
-    np.testing.assert_allclose(float(heading), math.atan2(d[1], d[0]), atol=1e-5)
+def test_no_corner_cutting():
+    cells, moves, _ = walk(xy_to_plan_cell(jnp.asarray([2.1, 10.3]), PRESET))
+    blocked = np.asarray(BLOCKED)
+    for c, k in zip(cells[:-1], moves, strict=True):
+        dr, dc = NEIGHBOURS[k]
+        if dr and dc:
+            assert not blocked[c[0] + dr, c[1]] and not blocked[c[0], c[1] + dc]
 
 
 def test_at_goal_and_unreachable():
-    goal_centre = plan_cell_to_xy(xy_to_plan_cell(GOAL, PRESET), PRESET)
-    xy, travelled, arrived, _ = _advance(FIELD, goal_centre, 0.25, PRESET)
-    assert bool(arrived) and float(travelled) < 1e-5
+    goal = xy_to_plan_cell(GOAL, PRESET)
+    nxt, move, at_goal, ok = _next(FIELD, goal, PRESET)
+    assert bool(at_goal) and bool(ok) and int(move) == -1
+    np.testing.assert_array_equal(np.asarray(nxt), np.asarray(goal))
     shut = np.array(OCC)
     shut[10:20, 80:82] = True  # close the door
     field = distance_field(true_blocked(shut, PRESET), GOAL, PRESET)
-    xy, travelled, arrived, _ = _advance(field, jnp.array([3.0, 9.0]), 0.25, PRESET)
-    assert not bool(arrived) and float(travelled) == 0.0
-    np.testing.assert_array_equal(np.asarray(xy), np.array([3.0, 9.0], np.float32))
+    start = xy_to_plan_cell(jnp.array([3.0, 9.0]), PRESET)
+    nxt, move, at_goal, ok = _next(field, start, PRESET)
+    assert not bool(at_goal) and not bool(ok) and int(move) == -1
+    np.testing.assert_array_equal(np.asarray(nxt), np.asarray(start))
 
 
-def test_zero_distance_does_not_move():
-    xy = jnp.array([3.0, 9.0], jnp.float32)
-    new_xy, travelled, arrived, _ = _advance(FIELD, xy, 0.0, PRESET)
-    assert float(travelled) == 0.0 and not bool(arrived)
-    np.testing.assert_array_equal(np.asarray(new_xy), np.asarray(xy))
-
-
-def test_vmap_and_no_retrace():
-    starts = jnp.array([[2.1, 10.3], [3.0, 2.0], [7.43, 5.57]], jnp.float32)
-    out = jax.vmap(lambda p: advance(FIELD, p, 0.25, PRESET))(starts)
+def test_vmap_equals_single_and_no_retrace():
+    starts = xy_to_plan_cell(jnp.array([[2.1, 10.3], [3.0, 2.0], [7.43, 5.57]]), PRESET)
+    out = jax.vmap(lambda c: next_cell(FIELD, c, PRESET))(starts)
     for k in range(3):
-        single = _advance(FIELD, starts[k], 0.25, PRESET)
+        single = _next(FIELD, starts[k], PRESET)
         for a, b in zip(out, single, strict=True):
-            np.testing.assert_allclose(np.asarray(a[k]), np.asarray(b), atol=1e-6)
+            np.testing.assert_array_equal(np.asarray(a[k]), np.asarray(b))
 
     @jax.jit
     @chex.assert_max_traces(n=1)
-    def step(field, xy, dist):
-        return advance(field, xy, dist, PRESET)
+    def descend(field, cell):
+        return next_cell(field, cell, PRESET)
 
     for k in range(3):
-        step(FIELD, starts[k], 0.1 * (k + 1))[0].block_until_ready()
+        descend(FIELD, starts[k])[0].block_until_ready()
 
 
-# --- traversability gate ---------------------------------------------------------------------
+# --- the blocking rule for single cells and the motion map -----------------------------------
 
 
-def reference_traversable(belief: np.ndarray, xy) -> bool:
-    cs, r = PRESET.cell_size, PRESET.robot_radius_m
-    h, w = belief.shape
-    for a in range(-3, h + 3):
-        for b in range(-3, w + 3):
-            dy = max(a * cs - xy[1], 0.0, xy[1] - (a + 1) * cs)
-            dx = max(b * cs - xy[0], 0.0, xy[0] - (b + 1) * cs)
-            if math.hypot(dx, dy) >= r - 1e-6:
-                continue
-            outside = not (0 <= a < h and 0 <= b < w)
-            if outside or belief[a, b] > PRESET.logodds_known:
-                return False
-    return True
-
-
-def test_traversable_matches_brute_force():
+def test_cell_blocked_equals_planning_map():
+    """The traversability gate's per-cell rule is the planning map's rule, cell for cell."""
     rng = np.random.default_rng(0)
     belief = np.where(OCC, 3.0, 0.0).astype(np.float32)
     belief[rng.random(OCC.shape) < 0.5] = 0.0  # half unknown: does not block
-    gate = jax.jit(is_traversable, static_argnums=2)
-    # points near the wall, the door, the table and the map edges
-    pts = np.concatenate(
-        [
-            rng.uniform([7.5, 0.0], [8.7, 3.0], (40, 2)),
-            rng.uniform([2.5, 5.5], [5.5, 7.5], (40, 2)),
-            rng.uniform([-0.2, -0.2], [0.6, 0.6], (20, 2)),
-        ]
-    ).astype(np.float32)
-    got = [bool(gate(belief, p, PRESET)) for p in pts]
-    want = [reference_traversable(belief, p) for p in pts]
-    assert got == want
-    assert any(got) and not all(got)
+    full = np.asarray(planning_blocked(belief, PRESET))
+    hp, wp = PRESET.plan_shape
+    cells = np.stack(np.meshgrid(np.arange(hp), np.arange(wp), indexing="ij"), -1)
+    per_cell = np.asarray(jax.jit(cell_blocked, static_argnums=2)(belief, cells, PRESET))
+    np.testing.assert_array_equal(per_cell, full)
+    assert full.any() and not full.all()
+    outside = jnp.array([[-1, 3], [hp, 0], [2, wp]])
+    assert bool(cell_blocked(belief, outside, PRESET).all())
 
 
-def test_known_free_space_is_traversable():
-    belief = np.where(OCC, 3.0, -3.0).astype(np.float32)
-    assert bool(is_traversable(belief, jnp.array([3.0, 9.0]), PRESET))
-    assert not bool(is_traversable(belief, jnp.array([8.0, 9.0]), PRESET))  # inside the wall
-    assert bool(is_traversable(belief, jnp.array([8.1, 1.5]), PRESET))  # in the door
+def test_motion_map_lets_a_blocked_agent_back_out():
+    belief = np.full(OCC.shape, -3.0, np.float32)
+    belief[58:62, 30:50] = 3.0  # a freshly seen edge of furniture
+    blocked = np.asarray(planning_blocked(belief, PRESET))
+    inside = jnp.array([4.1, 5.7])  # cell (28, 20): within the robot radius of the edge
+    c = np.asarray(xy_to_plan_cell(inside, PRESET))
+    assert blocked[c[0], c[1]]
+    motion = np.asarray(motion_blocked(belief, inside, PRESET))
+    assert not motion[c[0], c[1]]
+    # only cells next to the agent open, and never one holding an occupied fine cell
+    assert (
+        not (blocked & ~motion)[:, : c[1] - 3].any()
+        and not (blocked & ~motion)[:, c[1] + 3 :].any()
+    )
+    assert motion[29, 20]  # holds occupied fine cells (rows 58-59)
+    field = distance_field(jnp.asarray(motion), jnp.array([4.1, 3.1]), PRESET)
+    cells, _, arrived = walk(c, field)
+    assert arrived and len(cells) > 1
+    # an agent in free space moves on the plain planning map
+    free_xy = jnp.array([4.1, 3.1])
+    np.testing.assert_array_equal(np.asarray(motion_blocked(belief, free_xy, PRESET)), blocked)

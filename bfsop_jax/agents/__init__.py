@@ -1,6 +1,22 @@
-"""Agent strategies (SPEC 7) and episode rollouts."""
+"""Agent strategies and episode rollouts."""
 
-from bfsop_jax.agents.fbe import fbe_action
-from bfsop_jax.agents.rollout import Trajectory, rollout
+from bfsop_jax.agents.fbe import FBE, FBEConfig, FBEMemory, fbe_action
+from bfsop_jax.agents.rollout import (
+    Strategy,
+    Trajectory,
+    continue_rollout,
+    max_macro_steps,
+    rollout,
+)
 
-__all__ = ["Trajectory", "fbe_action", "rollout"]
+__all__ = [
+    "FBE",
+    "FBEConfig",
+    "FBEMemory",
+    "Strategy",
+    "Trajectory",
+    "continue_rollout",
+    "fbe_action",
+    "max_macro_steps",
+    "rollout",
+]

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from bfsop_jax.agents.fbe import fbe_action
+from bfsop_jax.agents.fbe import FBE, FBEMemory
 from bfsop_jax.config import Preset
 from bfsop_jax.env.env import step
 from bfsop_jax.env.types import Action, EnvState, StepInfo
@@ -73,6 +73,7 @@ class Memory:
     explore_m: jax.Array  # float32 []: decayed metres explored
     explore_reward: jax.Array  # float32 []: decayed landmark reward discovered
     switches: jax.Array  # int32 []
+    explore: FBEMemory  # the exploration strategy's memory
 
 
 @struct.dataclass
@@ -96,6 +97,9 @@ def vns_planner(seed: int = 0, **vns_kwargs) -> Planner:
     return plan
 
 
+_EXPLORER = FBE()
+
+
 def init_memory(state: EnvState, preset: Preset) -> Memory:
     m, t = state.found.shape[-1], preset.n_loi
     return Memory(
@@ -111,6 +115,7 @@ def init_memory(state: EnvState, preset: Preset) -> Memory:
         explore_m=jnp.zeros((), jnp.float32),
         explore_reward=jnp.zeros((), jnp.float32),
         switches=jnp.zeros((), jnp.int32),
+        explore=_EXPLORER.init(state, preset),
     )
 
 
@@ -198,7 +203,7 @@ def _decide(state: EnvState, memory: Memory, planner: Planner, preset: Preset):
     house = state.house
     pending = state.landmarks_seen & ~memory.retired
     remaining = state.budget - state.path_length
-    explore_action, has_frontier = fbe_action(state, preset)
+    explore_action, has_frontier, explore_memory = _EXPLORER.act(memory.explore, state, preset)
 
     # Cheap estimate over the top-n_loi pending landmarks.
     rew = jnp.where(pending, _landmark_rewards(state), 0.0)
@@ -246,6 +251,9 @@ def _decide(state: EnvState, memory: Memory, planner: Planner, preset: Preset):
         # A declined or empty evaluation is not repeated until the pending set changes.
         considered=jnp.where(memory.touring | started, memory.considered, pending),
         switches=memory.switches + started.astype(jnp.int32),
+        explore=jax.tree_util.tree_map(
+            lambda a, b: jnp.where(memory.touring, a, b), memory.explore, explore_memory
+        ),
     )
     pos = jnp.minimum(memory.tour_position, preset.n_loi - 1)
     tour_action = Action(
@@ -271,12 +279,16 @@ def _update(before: EnvState, after: EnvState, info: StepInfo, memory: Memory) -
     position = memory.tour_position + done_vp.astype(jnp.int32)
     touring = memory.touring & (position < memory.tour_length)
 
+    explore = _EXPLORER.update(memory.explore, before, after, info)
     rewards = _landmark_rewards(after)
     new_lois = after.landmarks_seen & ~before.landmarks_seen
     exploring = ~memory.touring
     decay = jnp.where(exploring, YIELD_DECAY, 1.0)
     return memory.replace(
         touring=touring,
+        explore=jax.tree_util.tree_map(
+            lambda a, b: jnp.where(memory.touring, a, b), memory.explore, explore
+        ),
         tour_position=position,
         attempts=jnp.where(done_vp, 0, attempts),
         retired=retired,

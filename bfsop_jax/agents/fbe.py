@@ -1,27 +1,135 @@
-"""Frontier-based exploration (FBE, SPEC 7.1): always head for the nearest frontier."""
+"""Frontier-based exploration (FBE): always head for the nearest frontier.
+
+The strategy sees only what the agent has sensed (the belief map and its pose). Each
+macro step it picks the frontier cluster nearest by geodesic distance on the agent's
+motion map (:func:`bfsop_jax.navigation.grid.motion_blocked`) and, on arrival, faces the
+unknown space next to that frontier (so the frontier is resolved rather than reached
+with its unknown side behind the agent's 90 degree field of view).
+
+A goal that brings no progress (no metre travelled and no newly known cell) for
+``FBEConfig.patience`` macro steps in a row is dropped: frontier cells within
+``drop_radius`` planning cells of a dropped goal are ignored from then on (a small ring
+buffer of the last ``max_dropped`` goals), and the agent picks the next-nearest frontier.
+That rule is what guarantees an episode ends only when the budget is spent or no
+reachable frontier is left; it fires on frontiers whose unknown cells no scan can
+reach (a sliver behind furniture, say).
+"""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from bfsop_jax.config import Preset
-from bfsop_jax.env.env import make_action
-from bfsop_jax.env.types import Action, EnvState
+from bfsop_jax.env.types import Action, EnvState, StepInfo
 from bfsop_jax.navigation.distance import distance_field
-from bfsop_jax.navigation.frontiers import frontier_clusters, nearest_frontier
-from bfsop_jax.navigation.grid import planning_blocked
+from bfsop_jax.navigation.frontiers import (
+    cluster_frontier_cells,
+    frontier_cells,
+    nearest_frontier,
+    plan_cell_states,
+    unknown_side,
+)
+from bfsop_jax.navigation.grid import motion_blocked, plan_cell_to_xy, xy_to_plan_cell
+
+__all__ = ["FBE", "FBEConfig", "FBEMemory", "fbe_action"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FBEConfig:
+    """Tunable numbers of frontier exploration (static: hashable, sets shapes)."""
+
+    patience: int = 2  # macro steps without progress before the goal is dropped
+    drop_radius: int = 3  # planning cells (Chebyshev) around a dropped goal that are ignored
+    max_dropped: int = 16  # dropped goals remembered (ring buffer)
+    look_radius: int = 2  # planning cells (Chebyshev) searched for the frontier's unknown side
+
+
+@struct.dataclass
+class FBEMemory:
+    """FBE's state between macro steps. G = ``FBEConfig.max_dropped``."""
+
+    goal: jax.Array  # int32 [2]: planning cell of the current goal (-1, -1: none)
+    stalled: jax.Array  # int32 []: consecutive macro steps without progress on it
+    dropped: jax.Array  # int32 [G, 2]: planning cells of dropped goals
+    dropped_valid: jax.Array  # bool [G]
+    n_dropped: jax.Array  # int32 []: goals dropped so far (ring position = n % G)
+
+
+@dataclasses.dataclass(frozen=True)
+class FBE:
+    """Frontier-based exploration as a strategy: ``init`` / ``act`` / ``update``."""
+
+    config: FBEConfig = FBEConfig()
+
+    def init(self, state: EnvState, preset: Preset) -> FBEMemory:
+        g = self.config.max_dropped
+        return FBEMemory(
+            goal=jnp.full((2,), -1, jnp.int32),
+            stalled=jnp.zeros((), jnp.int32),
+            dropped=jnp.zeros((g, 2), jnp.int32),
+            dropped_valid=jnp.zeros((g,), bool),
+            n_dropped=jnp.zeros((), jnp.int32),
+        )
+
+    def act(
+        self, memory: FBEMemory, state: EnvState, preset: Preset
+    ) -> tuple[Action, jax.Array, FBEMemory]:
+        """The nearest frontier not dropped, as an action facing its unknown side.
+
+        Returns ``(action, has_goal, memory)``; ``has_goal`` is false when no frontier is
+        reachable, in which case the action keeps the agent where it is.
+        """
+        cfg = self.config
+        blocked = motion_blocked(state.belief, state.pose[:2], preset)
+        field = distance_field(blocked, state.pose[:2], preset)
+        cells = frontier_cells(state.belief, preset) & ~_near_dropped(memory, cfg, preset)
+        frontiers = cluster_frontier_cells(cells, preset)
+        index, _ = nearest_frontier(frontiers, field, preset)
+        has_goal = index >= 0
+        goal_xy = jnp.where(has_goal, frontiers.xy[jnp.maximum(index, 0)], state.pose[:2])
+        goal = xy_to_plan_cell(goal_xy, preset)
+        _, unknown = plan_cell_states(state.belief, preset)
+        side = unknown_side(unknown, goal, cfg.look_radius)
+        look = has_goal & jnp.any(side != 0)
+        action = Action(goal_xy=goal_xy, look_xy=plan_cell_to_xy(goal + side, preset), look=look)
+        same = jnp.all(goal == memory.goal)
+        goal = jnp.where(has_goal, goal, -1)
+        memory = memory.replace(goal=goal, stalled=jnp.where(same, memory.stalled, 0))
+        return action, has_goal, memory
+
+    def update(
+        self, memory: FBEMemory, before: EnvState, after: EnvState, info: StepInfo
+    ) -> FBEMemory:
+        """Count macro steps without progress; drop the goal after ``patience`` of them."""
+        cfg = self.config
+        progress = (info.travelled > 0.0) | (info.newly_known > 0)
+        stalled = jnp.where(progress, 0, memory.stalled + 1)
+        drop = (stalled >= cfg.patience) & (memory.goal[0] >= 0)
+        slot = memory.n_dropped % cfg.max_dropped
+        return memory.replace(
+            stalled=jnp.where(drop, 0, stalled),
+            dropped=jnp.where(drop, memory.dropped.at[slot].set(memory.goal), memory.dropped),
+            dropped_valid=memory.dropped_valid | (drop & (jnp.arange(cfg.max_dropped) == slot)),
+            n_dropped=memory.n_dropped + drop.astype(jnp.int32),
+        )
+
+
+def _near_dropped(memory: FBEMemory, cfg: FBEConfig, preset: Preset) -> jax.Array:
+    """[Hp, Wp] bool: planning cells within ``drop_radius`` of a dropped goal."""
+    hp, wp = preset.plan_shape
+    r = cfg.drop_radius
+    rows = jnp.abs(jnp.arange(hp)[None, :] - memory.dropped[:, :1]) <= r  # [G, Hp]
+    cols = jnp.abs(jnp.arange(wp)[None, :] - memory.dropped[:, 1:]) <= r  # [G, Wp]
+    rows = rows & memory.dropped_valid[:, None]
+    return jnp.any(rows[:, :, None] & cols[:, None, :], axis=0)
 
 
 def fbe_action(state: EnvState, preset: Preset) -> tuple[Action, jax.Array]:
-    """The nearest frontier (by geodesic distance on the optimistic map) as the goal.
-
-    Returns ``(action, has_goal)``; ``has_goal`` is false when no frontier is reachable,
-    in which case the action keeps the agent where it is.
-    """
-    field = distance_field(planning_blocked(state.belief, preset), state.pose[:2], preset)
-    frontiers = frontier_clusters(state.belief, preset)
-    index, _ = nearest_frontier(frontiers, field, preset)
-    has_goal = index >= 0
-    goal = jnp.where(has_goal, frontiers.xy[jnp.maximum(index, 0)], state.pose[:2])
-    return make_action(goal), has_goal
+    """One memoryless FBE decision (no dropped goals): ``(action, has_goal)``."""
+    fbe = FBE()
+    action, has_goal, _ = fbe.act(fbe.init(state, preset), state, preset)
+    return action, has_goal

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from bfsop_jax.agents import fbe_action, rollout
+from bfsop_jax.agents import FBE, max_macro_steps, rollout
 from bfsop_jax.agents.bfsop import bfsop_rollout, vns_planner
 from bfsop_jax.config import EVAL_SEED_START, Preset, get_preset
 from bfsop_jax.data.shards import ShardStore
@@ -93,11 +93,11 @@ def explore(
     keys: jax.Array, houses, budgets: jax.Array, prior: jax.Array, preset: Preset
 ) -> EnvState:
     """Frontier-exploration runs (batched over houses) until each budget is spent."""
-    n_steps = math.ceil(3 * preset.budget_m / (preset.micro_steps * preset.move_step_m))
+    n_steps = max_macro_steps(preset.budget_m, preset)
 
     def one(key, house, budget):
         state = reset(key, house, 0, preset, prior, budget)
-        return rollout(state, fbe_action, preset, n_steps)[0]
+        return rollout(state, FBE(), preset, n_steps)[0]
 
     return jax.vmap(one)(keys, houses, budgets)
 
@@ -172,7 +172,7 @@ def on_trajectory_decisions(
     with ``switched`` are the exploitation decisions (instance on the online map at that
     moment, the teacher's tour).
     """  # fmt: skip
-    n_steps = math.ceil(3 * preset.budget_m / (preset.micro_steps * preset.move_step_m))
+    n_steps = max_macro_steps(preset.budget_m, preset)
     state = reset(key, house, category, preset, prior)
     planner = vns_planner(seed=0, max_iters=config.vns_iters, max_no_improve=config.vns_no_improve)
     _, _, decisions, _ = bfsop_rollout(state, planner, preset, n_steps)

@@ -1,14 +1,26 @@
 """The navigation environment: pure ``reset`` / ``step`` over :class:`EnvState`.
 
-One ``step`` is a macro action (SPEC 5): the geodesic distance field from the goal is
-computed once on the optimistic belief map, then the agent makes ``preset.micro_steps``
-motion steps of ``preset.move_step_m`` along it, turning to face its direction of motion
-and sensing (mapping + detection) after every step. Two gates stop it early:
+One ``step`` is a macro action (docs/design.md, "Motion"): the geodesic distance field
+from the goal is computed once on the optimistic belief map, then the agent makes up to
+``preset.micro_steps`` motion steps along it. A motion step moves from the centre of a
+planning cell to the centre of a neighbouring one (0.2 m straight, 0.28 m diagonally),
+facing its direction of motion, and senses (mapping + detection) on arrival. Two gates
+stop it early:
 
 * budget gate: the last motion step is shortened so that L reaches B exactly, then the
   episode is done;
-* traversability gate: when the next position turns out not traversable on the updated
-  belief the agent stops (``StepInfo.blocked``); the caller replans or drops the goal.
+* traversability gate: when the next cell turns out blocked on the updated belief (an
+  obstacle seen during this step) the agent stops (``StepInfo.blocked``); the caller
+  replans or drops the goal.
+
+On arrival with ``action.look`` the agent turns to face ``action.look_xy`` and senses once
+more (turning is free).
+
+Exact by construction: positions are planning-cell centres, move lengths and headings
+come from small tables, headings are whole angle units and every test a decision hinges
+on is integer arithmetic or a single rounding of exact values. So an episode is the same
+bit for bit alone or inside a ``jax.vmap`` batch (XLA fuses batched programs differently,
+which changes the rounding of general float expressions).
 
 Both functions are pure and shape-stable, so ``jax.jit(jax.vmap(step, in_axes=(0, 0, None)),
 static_argnums=2)`` compiles once per preset. The caller (an agent strategy) decides when
@@ -17,23 +29,30 @@ there is nothing left to do; the environment only closes the budget gate.
 
 from __future__ import annotations
 
-import math
-
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from bfsop_jax.config import Preset, get_preset
 from bfsop_jax.env.types import Action, EnvState, StepInfo
 from bfsop_jax.navigation.distance import distance_field
 from bfsop_jax.navigation.grid import (
+    cell_blocked,
+    motion_blocked,
     plan_cell_to_xy,
     planning_blocked,
     true_blocked,
     xy_to_plan_cell,
 )
-from bfsop_jax.navigation.path import advance, is_traversable
+from bfsop_jax.navigation.path import NEIGHBOURS, move_headings, move_lengths, next_cell
 from bfsop_jax.sensing.detection import landmarks_of_interest, observe, verified_targets
-from bfsop_jax.sensing.mapping import update_belief
+from bfsop_jax.sensing.mapping import (
+    ANGLE_UNITS,
+    bearing_units,
+    heading_from_units,
+    quantised_heading,
+    update_belief,
+)
 from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS, is_receptacle
 from bfsop_jax.world.types import House
 
@@ -66,10 +85,11 @@ def sense(state: EnvState, pose: jax.Array, preset: Preset, active: jax.Array = 
 
 
 def sample_start_pose(key: jax.Array, house: House, preset: Preset) -> jax.Array:
-    """A uniformly random start pose [3] on a robot-traversable planning cell.
+    """A uniformly random start pose [3] at the centre of a robot-traversable planning cell.
 
     Cells whose 3x3 neighbourhood is entirely traversable are preferred, so the start is
-    never wedged in a pocket between furniture.
+    never wedged in a pocket between furniture. The heading is a uniformly random whole
+    angle unit. Integer sampling only (no Gumbel trick), so the draw is exact.
     """
     blocked = true_blocked(house.occupied, preset)
     free = ~blocked
@@ -79,12 +99,13 @@ def sample_start_pose(key: jax.Array, house: House, preset: Preset) -> jax.Array
     for di in (-1, 0, 1):
         for dj in (-1, 0, 1):
             interior = interior & padded[1 + di : 1 + di + hp, 1 + dj : 1 + dj + wp]
-    candidates = jnp.where(interior.any(), interior, free)
+    candidates = jnp.where(interior.any(), interior, free).ravel()
     k_cell, k_heading = jax.random.split(key)
-    flat = jax.random.categorical(k_cell, jnp.where(candidates.ravel(), 0.0, -jnp.inf))
+    rank = jax.random.randint(k_cell, (), 0, jnp.maximum(candidates.sum(), 1))
+    flat = jnp.argmax(jnp.cumsum(candidates) > rank)
     cell = jnp.stack([flat // wp, flat % wp]).astype(jnp.int32)
     xy = plan_cell_to_xy(cell, preset)
-    heading = jax.random.uniform(k_heading, (), minval=-math.pi, maxval=math.pi)
+    heading = heading_from_units(jax.random.randint(k_heading, (), 0, ANGLE_UNITS))
     return jnp.concatenate([xy, heading[None]]).astype(jnp.float32)
 
 
@@ -136,10 +157,10 @@ def reset(
     )
 
     def look(state, quarter):
-        heading = pose[2] + quarter * (math.pi / 2)
+        heading = heading_from_units(quantised_heading(pose[2]) + quarter * (ANGLE_UNITS // 4))
         return sense(state, pose.at[2].set(heading), preset), None
 
-    state, _ = jax.lax.scan(look, state, jnp.arange(4, dtype=jnp.float32))
+    state, _ = jax.lax.scan(look, state, jnp.arange(4, dtype=jnp.int32))
     return state
 
 
@@ -155,6 +176,22 @@ def make_action(goal_xy, look_xy=None) -> Action:
     )
 
 
+def _partial_move_xy(cell: jax.Array, move: jax.Array, fraction: jax.Array, preset: Preset):
+    """The point ``fraction`` of the way from ``cell``'s centre along ``move`` (metres [2]).
+
+    The fraction is rounded to 1/256 (0.8 mm at 0.2 m cells) so that ``(cell + 1/2 + fraction * offset)`` is
+    exact in float32; the only rounding is the final multiply by the cell size.
+    """
+    q = jnp.round(jnp.clip(fraction, 0.0, 1.0) * 256.0) * np.float32(1.0 / 256.0)
+    off = jnp.asarray(NEIGHBOURS)[jnp.maximum(move, 0)].astype(jnp.float32)
+    rc = cell.astype(jnp.float32) + 0.5 + q * off
+    return jnp.stack([rc[1], rc[0]]) * np.float32(preset.plan_cell_size)
+
+
+def _known_count(belief: jax.Array, preset: Preset) -> jax.Array:
+    return jnp.sum(jnp.abs(belief) > preset.logodds_known, dtype=jnp.int32)
+
+
 def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvState, StepInfo]:
     """Execute one macro action (up to ``preset.micro_steps`` motion steps).
 
@@ -162,36 +199,49 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
     polyline length moved; the budget gate makes the final step end at L == B exactly.
     """
     preset = get_preset(preset)
-    field = distance_field(planning_blocked(state.belief, preset), action.goal_xy, preset)
+    # The map at planning time: the gate refuses only cells that newly seen obstacles
+    # block, so it never disagrees with the path the planner allowed.
+    planned = planning_blocked(state.belief, preset)
+    field = distance_field(
+        motion_blocked(state.belief, state.pose[:2], preset), action.goal_xy, preset
+    )
+    lengths = jnp.asarray(move_lengths(preset))
+    headings = jnp.asarray(move_headings())
     found_before = state.found.sum()
+    known_before = _known_count(state.belief, preset)
 
     def motion_step(carry, _):
         state, arrived, blocked, unreachable = carry
         active = ~state.done & ~arrived & ~blocked & ~unreachable
+        cell = xy_to_plan_cell(state.pose[:2], preset)
+        nxt, move, at_goal, ok = next_cell(field, cell, preset)
+        wants_move = active & (move >= 0)
+        refused = cell_blocked(state.belief, nxt, preset) & ~planned[nxt[0], nxt[1]]
+        moving = wants_move & ~refused
+        length = lengths[jnp.maximum(move, 0)]
         remaining = jnp.maximum(state.budget - state.path_length, 0.0)
-        step_len = jnp.minimum(preset.move_step_m, remaining)
-        new_xy, travelled, reached, heading = advance(field, state.pose[:2], step_len, preset)
-        # The gate uses the planner's own rule on the cell being entered, so a path the
-        # planner allowed only fails it when newly seen obstacles block that cell.
-        entered = plan_cell_to_xy(xy_to_plan_cell(new_xy, preset), preset)
-        traversable = is_traversable(state.belief, entered, preset)
-        # Nothing to descend and not at the goal: the goal is cut off on this map.
-        stuck = active & ~reached & (travelled <= 0.0)
-        moving = active & traversable & (travelled > 0.0)
-        # The budget gate: a step shortened to the remaining budget lands exactly on B.
-        at_budget = moving & (step_len >= remaining) & (travelled >= step_len)
-        path_length = jnp.where(
-            at_budget, state.budget, state.path_length + jnp.where(moving, travelled, 0.0)
+        # The budget gate: a move longer than what is left stops part way, at L == B.
+        at_budget = moving & (length >= remaining)
+        xy = jnp.where(
+            at_budget,
+            _partial_move_xy(cell, move, remaining / length, preset),
+            plan_cell_to_xy(nxt, preset),
         )
-        pose = jnp.where(moving, jnp.concatenate([new_xy, heading[None]]), state.pose)
-        state = state.replace(pose=pose, path_length=path_length)
-        state = sense(state, pose, preset, active=moving)
+        heading = heading_from_units(headings[jnp.maximum(move, 0)])
+        travelled = jnp.where(at_budget, remaining, length)
+        path_length = jnp.where(at_budget, state.budget, state.path_length + length)
+        state = state.replace(
+            pose=jnp.where(moving, jnp.concatenate([xy, heading[None]]), state.pose),
+            path_length=jnp.where(moving, path_length, state.path_length),
+        )
+        state = sense(state, state.pose, preset, active=moving)
         state = state.replace(done=state.done | (state.path_length >= state.budget))
+        entered_goal = moving & ~at_budget & (field[nxt[0], nxt[1]] == 0.0)
         carry = (
             state,
-            arrived | (active & reached & traversable),
-            blocked | (active & ~traversable),
-            unreachable | stuck,
+            arrived | (active & at_goal) | entered_goal,
+            blocked | (wants_move & refused),
+            unreachable | (active & ~ok),
         )
         return carry, (state.pose, moving, jnp.where(moving, travelled, 0.0))
 
@@ -201,8 +251,9 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
     )
 
     # On arrival at a viewpoint: face the landmark and sense once more (turning is free).
-    d = action.look_xy - state.pose[:2]
-    facing = state.pose.at[2].set(jnp.arctan2(d[1], d[0]))
+    facing = state.pose.at[2].set(
+        heading_from_units(bearing_units(action.look_xy - state.pose[:2]))
+    )
     do_look = arrived & action.look & ~state.done
     state = sense(state, facing, preset, active=do_look)
     state = state.replace(pose=jnp.where(do_look, facing, state.pose), steps=state.steps + 1)
@@ -215,5 +266,6 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
         blocked=blocked,
         unreachable=unreachable,
         new_found=(state.found.sum() - found_before).astype(jnp.int32),
+        newly_known=_known_count(state.belief, preset) - known_before,
     )
     return state, info

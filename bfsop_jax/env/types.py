@@ -48,8 +48,9 @@ class StepInfo:
 
     poses: jax.Array  # float32 [K, 3]: pose after each motion step (repeats when idle)
     moved: jax.Array  # bool [K]: the motion step moved the agent
-    travelled: jax.Array  # float32 []: metres travelled during this step
+    travelled: jax.Array  # float32 []: metres travelled during this step (sum of the moves)
     arrived: jax.Array  # bool []: the goal's planning cell was reached
     blocked: jax.Array  # bool []: traversability gate fired (next position not traversable)
     unreachable: jax.Array  # bool []: the goal is unreachable on the optimistic map
     new_found: jax.Array  # int32 []: targets verified during this step
+    newly_known: jax.Array  # int32 []: belief cells that became known (free or occupied)

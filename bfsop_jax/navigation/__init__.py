@@ -14,26 +14,36 @@ from bfsop_jax.navigation.frontiers import (
     frontier_cells,
     frontier_clusters,
     nearest_frontier,
+    plan_cell_states,
+    unknown_side,
 )
 from bfsop_jax.navigation.grid import (
+    ESCAPE_RADIUS,
+    cell_blocked,
+    motion_blocked,
     plan_cell_to_xy,
     planning_blocked,
     true_blocked,
     xy_to_plan_cell,
 )
-from bfsop_jax.navigation.path import advance, default_max_moves, is_traversable, next_cell
+from bfsop_jax.navigation.path import NEIGHBOURS, move_headings, move_lengths, next_cell
 
 __all__ = [
+    "ESCAPE_RADIUS",
     "MIN_CLUSTER_CELLS",
+    "NEIGHBOURS",
     "Frontiers",
+    "cell_blocked",
     "cluster_frontier_cells",
     "frontier_cells",
     "frontier_clusters",
+    "motion_blocked",
+    "move_headings",
+    "move_lengths",
     "nearest_frontier",
-    "advance",
-    "default_max_moves",
-    "is_traversable",
     "next_cell",
+    "plan_cell_states",
+    "unknown_side",
     "distance_field",
     "distance_fields",
     "distance_fields_from_cells",

@@ -12,8 +12,8 @@ Clusters are the 8-connected components of frontier cells (label propagation wit
 pointer jumping, run to convergence). Clusters of fewer than ``MIN_CLUSTER_CELLS`` cells
 are dropped as noise; the ``preset.max_frontier_clusters`` largest are kept, largest
 first (ties: lower row-major index of the cluster's first cell). Each is represented by
-its member cell nearest to the cluster's centroid, so the goal is a frontier cell
-itself, never a centroid inside a wall.
+its member cell nearest to the cluster's centroid (rounded to a cell; integer arithmetic),
+so the goal is a frontier cell itself, never a centroid inside a wall.
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ __all__ = [
     "frontier_cells",
     "frontier_clusters",
     "nearest_frontier",
+    "plan_cell_states",
+    "unknown_side",
 ]
 
 MIN_CLUSTER_CELLS = 3  # planning cells (3 x 0.2 m): smaller clusters are sensing noise
@@ -57,8 +59,8 @@ def _block_counts(mask: jax.Array, preset: Preset) -> jax.Array:
     return m.reshape(hp, f, wp, f).sum(axis=(1, 3))
 
 
-def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
-    """Frontier planning cells of a belief: [H, W] float32 log-odds -> [Hp, Wp] bool."""
+def plan_cell_states(belief: jax.Array, preset: Preset | str) -> tuple[jax.Array, jax.Array]:
+    """Free and unknown planning cells of a belief (module docstring): two [Hp, Wp] bool."""
     preset = get_preset(preset)
     if belief.shape[-2:] != tuple(preset.grid_shape):
         raise ValueError(
@@ -75,10 +77,34 @@ def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
     n_unknown = n - n_free - n_occ
     free = (2 * n_free > n) & (n_occ == 0)
     unknown = (2 * n_unknown >= n) & (n_occ == 0)
+    return free, unknown
+
+
+def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
+    """Frontier planning cells of a belief: [H, W] float32 log-odds -> [Hp, Wp] bool."""
+    preset = get_preset(preset)
+    free, unknown = plan_cell_states(belief, preset)
     # planning cells beyond the map edge are not unknown space
     up = jnp.pad(unknown, 1, constant_values=False)
     next_to_unknown = up[:-2, 1:-1] | up[2:, 1:-1] | up[1:-1, :-2] | up[1:-1, 2:]
     return free & next_to_unknown & ~planning_blocked(belief, preset)
+
+
+def unknown_side(unknown: jax.Array, cells: jax.Array, radius: int) -> jax.Array:
+    """Direction from each cell towards the unknown space around it.
+
+    ``unknown`` [Hp, Wp] bool (see :func:`plan_cell_states`), ``cells`` [..., 2] int32
+    -> [..., 2] int32: the sum of the (drow, dcol) offsets of the unknown cells within
+    ``radius`` (Chebyshev) of the cell; (0, 0) when there are none or they balance out.
+    Integer arithmetic, so a look direction built from it is exact.
+    """
+    hp, wp = unknown.shape
+    r = np.arange(-radius, radius + 1, dtype=np.int32)
+    off = np.stack(np.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)  # [O, 2]
+    nb = jnp.asarray(cells, jnp.int32)[..., None, :] + off
+    inside = (nb[..., 0] >= 0) & (nb[..., 0] < hp) & (nb[..., 1] >= 0) & (nb[..., 1] < wp)
+    unk = inside & unknown[jnp.clip(nb[..., 0], 0, hp - 1), jnp.clip(nb[..., 1], 0, wp - 1)]
+    return jnp.sum(jnp.where(unk[..., None], off, 0), axis=-2).astype(jnp.int32)
 
 
 def _component_labels(cells: jax.Array) -> jax.Array:
@@ -132,19 +158,22 @@ def cluster_frontier_cells(
     seg = jnp.where(member, lab, n)  # non-members go to a dump segment
     ii, jj = jnp.divmod(jnp.arange(n, dtype=jnp.int32), wp)
     # one scatter for size and coordinate sums of every component (indexed by its root)
-    stats = jnp.stack([jnp.ones(n), ii, jj], -1) * member[:, None]
-    stats = jax.ops.segment_sum(stats.astype(jnp.float32), seg, num_segments=n + 1)[:n]
-    size = stats[:, 0].astype(jnp.int32)
+    stats = jnp.stack([jnp.ones(n, jnp.int32), ii, jj], -1) * member[:, None]
+    stats = jax.ops.segment_sum(stats, seg, num_segments=n + 1)[:n]
+    size = stats[:, 0]
     root = member & (lab == jnp.arange(n))
-    # float keys: XLA:CPU's integer top_k falls back to a full sort (30x slower)
+    # float keys: XLA:CPU's integer top_k falls back to a full sort (30x slower); sizes are
+    # exact in float32, and top_k puts the lower index first on ties
     key = jnp.where(root & (size >= min_size), size, -1).astype(jnp.float32)
     top_key, top_root = lax.top_k(key, f_max)
     top_size = top_key.astype(jnp.int32)
     valid = top_size >= min_size
-    # representative: the member nearest to its cluster's centroid (ties: lowest index)
+    # representative: the member nearest to its cluster's centroid rounded to a cell (ties:
+    # lowest index); integer arithmetic, so the choice never depends on float rounding
     lab_c = jnp.minimum(lab, n - 1)
-    centroid = stats[lab_c, 1:] / jnp.maximum(stats[lab_c, :1], 1.0)
-    d2 = jnp.where(member, (ii - centroid[:, 0]) ** 2 + (jj - centroid[:, 1]) ** 2, jnp.inf)
+    count = jnp.maximum(stats[lab_c, :1], 1)
+    centroid = (2 * stats[lab_c, 1:] + count) // (2 * count)  # [n, 2] rounded half up
+    d2 = jnp.where(member, (ii - centroid[:, 0]) ** 2 + (jj - centroid[:, 1]) ** 2, 2**30)
     best = jax.ops.segment_min(d2, seg, num_segments=n + 1)[:n]
     index = jnp.arange(n, dtype=jnp.int32)
     first = jnp.where(member & (d2 <= best[lab_c]), index, n)

@@ -30,12 +30,18 @@ import numpy as np
 from bfsop_jax.config import Preset, get_preset
 
 __all__ = [
+    "ESCAPE_RADIUS",
+    "cell_blocked",
+    "motion_blocked",
     "planning_blocked",
     "true_blocked",
     "xy_to_plan_cell",
     "plan_cell_to_xy",
     "inflation_offsets",
 ]
+
+
+ESCAPE_RADIUS = 2  # planning cells around a blocked agent that it may back out through
 
 
 @functools.cache
@@ -71,8 +77,7 @@ def _inflate(occupied: jax.Array, preset: Preset) -> jax.Array:
     f = preset.plan_factor
     hp, wp = preset.plan_shape
     offsets = inflation_offsets(preset)
-    lo = max(0, -min(min(o) for o in offsets))
-    hi = max(max(o) for o in offsets) + 1
+    lo, hi = _offset_bounds(preset)
     # Pad so every (planning cell, offset) pair indexes inside; outside the map is occupied.
     pad_h = (lo, hp * f - h + hi)
     pad_w = (lo, wp * f - w + hi)
@@ -82,6 +87,34 @@ def _inflate(occupied: jax.Array, preset: Preset) -> jax.Array:
         a0, b0 = lo + da, lo + db
         blocked = blocked | occ[a0 : a0 + hp * f : f, b0 : b0 + wp * f : f]
     return blocked
+
+
+def _offset_bounds(preset: Preset) -> tuple[int, int]:
+    offsets = inflation_offsets(preset)
+    return max(0, -min(min(o) for o in offsets)), max(max(o) for o in offsets) + 1
+
+
+def cell_blocked(belief: jax.Array, cells: jax.Array, preset: Preset | str) -> jax.Array:
+    """The blocking rule of :func:`planning_blocked` for a few planning cells only.
+
+    ``belief`` [H, W] float32 log-odds, ``cells`` [..., 2] int32 (row, col) -> [...] bool.
+    Evaluates exactly the same integer offsets as the full map (gathering ~16 fine cells
+    per cell), so the traversability gate and the planner can never disagree on a cell.
+    Cells outside the planning grid are blocked.
+    """
+    preset = get_preset(preset)
+    h, w = preset.grid_shape
+    hp, wp = preset.plan_shape
+    f = preset.plan_factor
+    off = np.asarray(inflation_offsets(preset), np.int32)  # [O, 2]
+    cells = jnp.asarray(cells, jnp.int32)
+    a = cells[..., None, 0] * f + off[:, 0]
+    b = cells[..., None, 1] * f + off[:, 1]
+    inside = (a >= 0) & (a < h) & (b >= 0) & (b < w)
+    occ = belief[jnp.clip(a, 0, h - 1), jnp.clip(b, 0, w - 1)] > preset.logodds_known
+    on_grid = (cells[..., 0] >= 0) & (cells[..., 0] < hp) & (cells[..., 1] >= 0)
+    on_grid = on_grid & (cells[..., 1] < wp)
+    return jnp.any(occ | ~inside, axis=-1) | ~on_grid
 
 
 def planning_blocked(belief: jax.Array, preset: Preset | str) -> jax.Array:
@@ -122,3 +155,26 @@ def plan_cell_to_xy(cells: jax.Array, preset: Preset | str) -> jax.Array:
     x = (cells[..., 1].astype(jnp.float32) + 0.5) * pc
     y = (cells[..., 0].astype(jnp.float32) + 0.5) * pc
     return jnp.stack([x, y], axis=-1)
+
+
+def motion_blocked(belief: jax.Array, agent_xy: jax.Array, preset: Preset | str) -> jax.Array:
+    """The planning map an agent at ``agent_xy`` [2] (metres) moves on: [Hp, Wp] bool.
+
+    Equal to :func:`planning_blocked`, except when the agent's own cell is blocked (an
+    obstacle it had not seen turned out to lie within the robot radius): then the cells
+    within ``ESCAPE_RADIUS`` (Chebyshev) of it that hold no known-occupied fine cell of
+    their own are open, so the agent can back out of the margin instead of being stuck
+    with every goal unreachable.
+    """
+    preset = get_preset(preset)
+    blocked = planning_blocked(belief, preset)
+    h, w = preset.grid_shape
+    f = preset.plan_factor
+    hp, wp = preset.plan_shape
+    occ = jnp.pad(belief > preset.logodds_known, ((0, hp * f - h), (0, wp * f - w)))
+    own_occupied = occ.reshape(hp, f, wp, f).any(axis=(1, 3))
+    cell = xy_to_plan_cell(agent_xy, preset)
+    rows = jnp.abs(jnp.arange(hp) - cell[0]) <= ESCAPE_RADIUS
+    cols = jnp.abs(jnp.arange(wp) - cell[1]) <= ESCAPE_RADIUS
+    escape = rows[:, None] & cols[None, :] & ~own_occupied & blocked[cell[0], cell[1]]
+    return blocked & ~escape

@@ -29,7 +29,14 @@ import jax.numpy as jnp
 from flax import struct
 
 from bfsop_jax.config import Preset
-from bfsop_jax.sensing.mapping import SUBCELL_BITS, subcell_origin
+from bfsop_jax.sensing.mapping import (
+    ANGLE_UNITS,
+    SUBCELL_BITS,
+    quantised_heading,
+    ray_offsets,
+    step_table,
+    subcell_origin,
+)
 from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS, is_receptacle
 from bfsop_jax.world.types import House
 
@@ -50,7 +57,9 @@ class Detections:
     """What one camera frame shows of every object slot."""
 
     in_view: jax.Array  # [M] bool: valid, centre inside the FoV, within range, in line of sight
-    distance: jax.Array  # [M] float32: metres from the agent to the object centre
+    # [M] float32: metres from the agent to the object centre (read as range + 2 cells
+    # beyond that)
+    distance: jax.Array
     area_px: jax.Array  # [M] float32: apparent area (focal_px * s / d)^2 in pixels
     in_fov: jax.Array  # [M] bool: centre inside the horizontal field of view
     line_of_sight: jax.Array  # [M] bool: no obstacle before the object's footprint
@@ -75,6 +84,11 @@ def _check_inputs(house: House, pose: jax.Array, preset: Preset) -> None:
         raise ValueError(
             f"house.cell_size {house.cell_size} differs from preset.cell_size {preset.cell_size}"
         )
+    if _geom_limit(preset) >= 2**15:
+        raise ValueError(
+            f"sensor_range_m {preset.sensor_range_m} is too long for the integer detection "
+            f"geometry (at most about {125 * preset.cell_size:.1f} m)"
+        )
     m = house.object_category.shape[0]
     for name in ("object_xy", "object_size", "object_half_extent", "object_parent"):
         n = getattr(house, name).shape[0]
@@ -82,12 +96,29 @@ def _check_inputs(house: House, pose: jax.Array, preset: Preset) -> None:
             raise ValueError(f"house.{name} has {n} object slots, object_category has {m}")
 
 
-def _line_of_sight(house: House, pose: jax.Array, dist: jax.Array, preset: Preset) -> jax.Array:
-    """[M] bool: the first blocked sample towards each centre lies within its footprint slack."""
+# Object geometry is compared in integer units of 1/256 cell (0.39 mm at 0.1 m cells):
+# the fixed-point sub-cell units of the mapping shifted right by this many bits.
+_GEOM_SHIFT = SUBCELL_BITS - 8
+_GEOM_PER_CELL = 1 << (SUBCELL_BITS - _GEOM_SHIFT)
+
+
+def _geom_limit(preset: Preset) -> int:
+    """Offsets (geometry units) are clipped here: 2 cells beyond the sensor range."""
+    return (int(math.ceil(preset.sensor_range_m / preset.cell_size - 1e-6)) + 2) * _GEOM_PER_CELL
+
+
+def _line_of_sight(
+    house: House, agent: jax.Array, target: jax.Array, dist: jax.Array, preset: Preset
+) -> jax.Array:
+    """[M] bool: the first blocked sample towards each centre lies within its footprint slack.
+
+    ``agent`` [2] and ``target`` [M, 2] are fixed-point sub-cell positions, ``dist`` [M]
+    metres. The test ``t_first >= d - slack`` is evaluated as
+    ``(N - j_first) * d <= N * slack``: products, a square root and one sum of exact
+    values, so it cannot round differently in a batched program.
+    """
     h, w = preset.grid_shape
     n = _n_los_samples(preset)
-    agent = subcell_origin(pose[:2], preset)  # [2] int32
-    target = subcell_origin(house.object_xy, preset)  # [M, 2] int32
     # Clipping only touches objects beyond sensor range (never visible) and keeps D * j in int32.
     lim = 2 * n << SUBCELL_BITS
     offset = jnp.clip(target - agent[None, :], -lim, lim)
@@ -100,13 +131,17 @@ def _line_of_sight(house: House, pose: jax.Array, dist: jax.Array, preset: Prese
     blocked = house.occupied.reshape(-1).at[flat].get(mode="fill", fill_value=True)
     blocked = jnp.concatenate([blocked, jnp.ones((blocked.shape[0], 1), bool)], axis=1)
     j_first = jnp.argmax(blocked, axis=1)  # N + 1 when nothing blocks the segment
-    t_first = j_first.astype(jnp.float32) * dist / n
 
-    own = jnp.linalg.norm(house.object_half_extent, axis=-1)
+    # Half-diagonal of each footprint from integer half extents (geometry units).
+    ext = jnp.round(house.object_half_extent * jnp.float32(_GEOM_PER_CELL / preset.cell_size))
+    ext = jnp.minimum(ext, 2**14).astype(jnp.int32)
+    own = jnp.sqrt((ext[:, 0] * ext[:, 0] + ext[:, 1] * ext[:, 1]).astype(jnp.float32))
+    own = own * jnp.float32(preset.cell_size / _GEOM_PER_CELL)
     parent = house.object_parent
     parent_ext = jnp.where(parent >= 0, own[jnp.clip(parent, 0, own.shape[0] - 1)], 0.0)
     slack = jnp.maximum(own, parent_ext) + jnp.float32(preset.cell_size)
-    return t_first >= dist - slack
+    ahead = jnp.maximum(n - j_first, 0).astype(jnp.float32)
+    return ahead * dist <= jnp.float32(n) * slack
 
 
 def observe(house: House, pose: jax.Array, preset: Preset) -> Detections:
@@ -120,21 +155,41 @@ def observe(house: House, pose: jax.Array, preset: Preset) -> Detections:
     Returns:
       :class:`Detections` with [M] fields; invalid slots (category -1) are never in view
       and have area 0.
+
+    Geometry is exact integer arithmetic (module docstring): the offset to each centre in
+    1/256 cell units, its squared length, and the field of view as the wedge between the
+    ray table's directions of the first and last ray of the scan.
     """
     _check_inputs(house, pose, preset)
     pose = jnp.asarray(pose, jnp.float32)
-    rel = house.object_xy.astype(jnp.float32) - pose[None, :2]
-    dist = jnp.linalg.norm(rel, axis=-1)
-    facing = jnp.stack([jnp.cos(pose[2]), jnp.sin(pose[2])])
-    # cos(bearing) >= cos(fov / 2), written without a division by d.
-    in_fov = rel @ facing >= dist * jnp.float32(math.cos(preset.fov_rad / 2))
-    in_range = dist <= preset.sensor_range_m
-    los = _line_of_sight(house, pose, dist, preset)
+    agent = subcell_origin(pose[:2], preset)  # [2] int32
+    target = subcell_origin(house.object_xy, preset)  # [M, 2] int32
+    lim = _geom_limit(preset)
+    rel = jnp.clip((target - agent[None, :]) >> _GEOM_SHIFT, -lim, lim)  # [M, 2] int32
+    d2 = rel[:, 0] * rel[:, 0] + rel[:, 1] * rel[:, 1]  # <= 2 lim^2 < 2^31
+    unit_m = jnp.float32(preset.cell_size / _GEOM_PER_CELL)
+    dist = jnp.sqrt(d2.astype(jnp.float32)) * unit_m
+    range_units = int(round(preset.sensor_range_m / preset.cell_size * _GEOM_PER_CELL))
+    in_range = d2 <= range_units * range_units
+    # Field of view: between the directions of the scan's outermost rays.
+    h = quantised_heading(pose[2])
+    offsets = ray_offsets(preset)
+    table = jnp.asarray(step_table())
+    right = table[(h + int(offsets[0])) & (ANGLE_UNITS - 1)]
+    left = table[(h + int(offsets[-1])) & (ANGLE_UNITS - 1)]
+    c_right = right[0] * rel[:, 1] - right[1] * rel[:, 0]  # >= 0: counter-clockwise of it
+    c_left = rel[:, 0] * left[1] - rel[:, 1] * left[0]  # >= 0: clockwise of it
+    if preset.fov_deg <= 180.0:
+        in_fov = (c_right >= 0) & (c_left >= 0)
+    else:
+        in_fov = (c_right >= 0) | (c_left >= 0)
+    los = _line_of_sight(house, agent, target, dist, preset)
     valid = house.object_valid
     in_view = valid & in_fov & in_range & los
-    # Clamp d so an object at the agent's position has a large but finite area.
-    size_px = jnp.float32(preset.focal_px) * house.object_size / jnp.maximum(dist, 1e-3)
-    area = jnp.where(valid, size_px**2, 0.0).astype(jnp.float32)
+    # A = (f s / d)^2 from products only; d clamped so an object at the agent is finite.
+    fs = jnp.float32(preset.focal_px) * house.object_size
+    d2_m = jnp.maximum(d2.astype(jnp.float32) * (unit_m * unit_m), jnp.float32(1e-6))
+    area = jnp.where(valid, (fs * fs) / d2_m, 0.0).astype(jnp.float32)
     return Detections(
         in_view=in_view, distance=dist, area_px=area, in_fov=in_fov, line_of_sight=los
     )

@@ -63,11 +63,15 @@ __all__ = [
     "SUBCELL_BITS",
     "Rays",
     "ScanCells",
+    "bearing_units",
     "cast_rays",
+    "heading_from_units",
     "known_free",
     "known_occupied",
     "quantised_heading",
+    "ray_offsets",
     "scan_cells",
+    "step_table",
     "subcell_origin",
     "unknown",
     "update_belief",
@@ -105,14 +109,14 @@ class ScanCells:
 
 
 @functools.cache
-def _step_table() -> np.ndarray:
+def step_table() -> np.ndarray:
     """[ANGLE_UNITS, 2] int32: half-cell step (SX, SY) in sub-cell units per angle unit."""
     t = 2.0 * np.pi * np.arange(ANGLE_UNITS, dtype=np.float64) / ANGLE_UNITS
     half = _Q / 2
     return np.stack([np.rint(np.cos(t) * half), np.rint(np.sin(t) * half)], -1).astype(np.int32)
 
 
-def _ray_offsets(preset: Preset) -> np.ndarray:
+def ray_offsets(preset: Preset) -> np.ndarray:
     """[n_rays] int32: angle units of each ray relative to the heading (static)."""
     n = preset.n_rays
     if n == 1:
@@ -183,11 +187,50 @@ def quantised_heading(heading: jax.Array) -> jax.Array:
     return h.astype(jnp.int32) & (ANGLE_UNITS - 1)
 
 
+def heading_from_units(units: jax.Array) -> jax.Array:
+    """Angle units -> heading in radians, float32 in ``[-pi, pi)``.
+
+    One multiply of an exact integer, so :func:`quantised_heading` gives ``units`` back
+    and the float is the same in every program that computes it.
+    """
+    u = (jnp.asarray(units, jnp.int32) + ANGLE_UNITS // 2) & (ANGLE_UNITS - 1)
+    return (u - ANGLE_UNITS // 2).astype(jnp.float32) * jnp.float32(2 * math.pi / ANGLE_UNITS)
+
+
+_BEARING_COARSE = 128  # angle units between the candidates of the coarse search
+
+
+def bearing_units(vec_m: jax.Array) -> jax.Array:
+    """Direction of a vector as an angle unit, by integer arithmetic only.
+
+    ``vec_m`` [2] float32 metres (x, y) -> int32 unit in ``[0, ANGLE_UNITS)``: the unit
+    whose half-cell step (the ray table) has the largest dot product with the vector in
+    whole millimetres (clipped to +-16 m), found by a coarse search every
+    ``_BEARING_COARSE`` units and a fine search around the best (ties: lowest unit). No
+    ``atan2``: its last bit may differ between a batched and an unbatched program, and a
+    heading decides which cells the next scan touches. The result is within about 0.3
+    degrees of the true direction (the table's integer rounding); the zero vector gives 0.
+    """
+    v = jnp.clip(jnp.round(jnp.asarray(vec_m, jnp.float32) * 1000.0), -16000, 16000)
+    v = v.astype(jnp.int32)
+    table = jnp.asarray(step_table())
+
+    def best(units):
+        st = table[units]  # dot <= 2 * 16000 * 32768 < 2**31
+        dot = v[0] * st[:, 0] + v[1] * st[:, 1]
+        top = jnp.max(dot)
+        return jnp.min(jnp.where(dot == top, units, ANGLE_UNITS))
+
+    coarse = best(jnp.arange(0, ANGLE_UNITS, _BEARING_COARSE, dtype=jnp.int32))
+    fine = coarse + jnp.arange(-2 * _BEARING_COARSE, 2 * _BEARING_COARSE + 1, dtype=jnp.int32)
+    return best(fine & (ANGLE_UNITS - 1))
+
+
 def _sample_cells(pose: jax.Array, preset: Preset) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Cells of every ray sample: rows, cols ``[n_rays, K+1]`` int32 and angle units [n_rays]."""
     origin = subcell_origin(pose[:2], preset)
-    units = (quantised_heading(pose[2]) + jnp.asarray(_ray_offsets(preset))) & (ANGLE_UNITS - 1)
-    step = jnp.asarray(_step_table())[units]  # [n_rays, 2]
+    units = (quantised_heading(pose[2]) + jnp.asarray(ray_offsets(preset))) & (ANGLE_UNITS - 1)
+    step = jnp.asarray(step_table())[units]  # [n_rays, 2]
     k = jnp.arange(_n_steps(preset) + 1, dtype=jnp.int32)
     x = origin[0] + k[None, :] * step[:, 0:1]
     y = origin[1] + k[None, :] * step[:, 1:2]
