@@ -179,8 +179,9 @@ def make_action(goal_xy, look_xy=None) -> Action:
 def _partial_move_xy(cell: jax.Array, move: jax.Array, fraction: jax.Array, preset: Preset):
     """The point ``fraction`` of the way from ``cell``'s centre along ``move`` (metres [2]).
 
-    The fraction is rounded to 1/256 (0.8 mm at 0.2 m cells) so that ``(cell + 1/2 + fraction * offset)`` is
-    exact in float32; the only rounding is the final multiply by the cell size.
+    The fraction is rounded to 1/256 (0.8 mm at 0.2 m cells) so that
+    ``cell + 1/2 + fraction * offset`` is exact in float32; the only rounding is the final
+    multiply by the cell size.
     """
     q = jnp.round(jnp.clip(fraction, 0.0, 1.0) * 256.0) * np.float32(1.0 / 256.0)
     off = jnp.asarray(NEIGHBOURS)[jnp.maximum(move, 0)].astype(jnp.float32)
