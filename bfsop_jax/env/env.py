@@ -1,6 +1,6 @@
 """The navigation environment: pure ``reset`` / ``step`` over :class:`EnvState`.
 
-One ``step`` is a macro action (docs/design.md, "Motion"): the geodesic distance field
+One ``step`` is a macro action (docs/world.md, "Environment"): the geodesic distance field
 from the goal is computed once on the optimistic belief map, then the agent makes up to
 ``preset.micro_steps`` motion steps along it. A motion step moves from the centre of a
 planning cell to the centre of a neighbouring one (0.2 m straight, 0.28 m diagonally),
