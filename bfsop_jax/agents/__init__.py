@@ -1,6 +1,6 @@
 """Agent strategies and episode rollouts."""
 
-from bfsop_jax.agents.fbe import FBE, FBEConfig, FBEMemory, fbe_action
+from bfsop_jax.agents.fbe import FBE, FBEConfig, FBEMemory
 from bfsop_jax.agents.rollout import (
     Strategy,
     Trajectory,
@@ -16,7 +16,6 @@ __all__ = [
     "Strategy",
     "Trajectory",
     "continue_rollout",
-    "fbe_action",
     "max_macro_steps",
     "rollout",
 ]

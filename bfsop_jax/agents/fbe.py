@@ -35,7 +35,7 @@ from bfsop_jax.navigation.frontiers import (
 )
 from bfsop_jax.navigation.grid import motion_blocked, plan_cell_to_xy, xy_to_plan_cell
 
-__all__ = ["FBE", "FBEConfig", "FBEMemory", "fbe_action"]
+__all__ = ["FBE", "FBEConfig", "FBEMemory"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,10 +126,3 @@ def _near_dropped(memory: FBEMemory, cfg: FBEConfig, preset: Preset) -> jax.Arra
     cols = jnp.abs(jnp.arange(wp)[None, :] - memory.dropped[:, 1:]) <= r  # [G, Wp]
     rows = rows & memory.dropped_valid[:, None]
     return jnp.any(rows[:, :, None] & cols[:, None, :], axis=0)
-
-
-def fbe_action(state: EnvState, preset: Preset) -> tuple[Action, jax.Array]:
-    """One memoryless FBE decision (no dropped goals): ``(action, has_goal)``."""
-    fbe = FBE()
-    action, has_goal, _ = fbe.act(fbe.init(state, preset), state, preset)
-    return action, has_goal
