@@ -39,8 +39,7 @@ class Preset:
     cell_size: float = 0.1  # occupancy grid resolution (paper value)
     # --- motion -------------------------------------------------------------------------
     robot_radius_m: float = 0.2
-    move_step_m: float = 0.25  # length of one motion step; the agent senses after each
-    micro_steps: int = 8  # motion steps executed by one env.step (one macro action)
+    micro_steps: int = 8  # motion steps (one planning cell each) per env.step (a macro action)
     plan_factor: int = 2  # planning grid cell = plan_factor * cell_size (0.2 m)
     # --- sensing (SPEC 4) ---------------------------------------------------------------
     fov_deg: float = 90.0

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import math
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from bfsop_jax.agents import max_macro_steps
 from bfsop_jax.agents.bfsop import bfsop_rollout, greedy_estimate, vns_planner
 from bfsop_jax.config import get_preset
 from bfsop_jax.env import reset
@@ -34,7 +33,7 @@ def test_bfsop_episode_switches_and_plans_feasible_tours():
     house = jax.jit(generate_house, static_argnums=1)(jax.random.key(7), SMOKE)
     prior = jnp.full((N_CATEGORIES, N_TARGETS), 0.5)  # every receptacle is a landmark
     state = jax.jit(reset, static_argnums=3)(jax.random.key(7), house, 8, SMOKE, prior)
-    n = math.ceil(2 * SMOKE.budget_m / (SMOKE.micro_steps * SMOKE.move_step_m))
+    n = max_macro_steps(SMOKE.budget_m, SMOKE, slack=2.0)
     planner = vns_planner(0, max_iters=100, max_no_improve=50)
     run = jax.jit(lambda s: bfsop_rollout(s, planner, SMOKE, n))
     final, memory, decisions, poses = run(state)
