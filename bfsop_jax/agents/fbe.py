@@ -28,12 +28,17 @@ from bfsop_jax.env.types import Action, EnvState, StepInfo
 from bfsop_jax.navigation.distance import distance_field
 from bfsop_jax.navigation.frontiers import (
     cluster_frontier_cells,
-    frontier_cells,
+    frontier_mask,
     nearest_frontier,
     plan_cell_states,
     unknown_side,
 )
-from bfsop_jax.navigation.grid import motion_blocked, plan_cell_to_xy, xy_to_plan_cell
+from bfsop_jax.navigation.grid import (
+    motion_blocked,
+    plan_cell_to_xy,
+    planning_blocked,
+    xy_to_plan_cell,
+)
 
 __all__ = ["FBE", "FBEConfig", "FBEMemory"]
 
@@ -84,15 +89,18 @@ class FBE:
         reachable, in which case the action keeps the agent where it is.
         """
         cfg = self.config
-        blocked = motion_blocked(state.belief, state.pose[:2], preset)
-        field = distance_field(blocked, state.pose[:2], preset)
-        cells = frontier_cells(state.belief, preset) & ~_near_dropped(memory, cfg, preset)
+        # One planning map and one pass over the planning-cell states serve the motion
+        # map, the frontier cells and the look direction.
+        blocked = planning_blocked(state.belief, preset)
+        free, unknown = plan_cell_states(state.belief, preset)
+        motion = motion_blocked(state.belief, state.pose[:2], preset, blocked)
+        field = distance_field(motion, state.pose[:2], preset)
+        cells = frontier_mask(free, unknown, blocked) & ~_near_dropped(memory, cfg, preset)
         frontiers = cluster_frontier_cells(cells, preset)
         index, _ = nearest_frontier(frontiers, field, preset)
         has_goal = index >= 0
         goal_xy = jnp.where(has_goal, frontiers.xy[jnp.maximum(index, 0)], state.pose[:2])
         goal = xy_to_plan_cell(goal_xy, preset)
-        _, unknown = plan_cell_states(state.belief, preset)
         side = unknown_side(unknown, goal, cfg.look_radius)
         look = has_goal & jnp.any(side != 0)
         action = Action(goal_xy=goal_xy, look_xy=plan_cell_to_xy(goal + side, preset), look=look)

@@ -204,7 +204,7 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
     # block, so it never disagrees with the path the planner allowed.
     planned = planning_blocked(state.belief, preset)
     field = distance_field(
-        motion_blocked(state.belief, state.pose[:2], preset), action.goal_xy, preset
+        motion_blocked(state.belief, state.pose[:2], preset, planned), action.goal_xy, preset
     )
     lengths = jnp.asarray(move_lengths(preset))
     headings = jnp.asarray(move_headings())

@@ -33,6 +33,7 @@ __all__ = [
     "cluster_frontier_cells",
     "frontier_cells",
     "frontier_clusters",
+    "frontier_mask",
     "nearest_frontier",
     "plan_cell_states",
     "unknown_side",
@@ -84,10 +85,16 @@ def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
     """Frontier planning cells of a belief: [H, W] float32 log-odds -> [Hp, Wp] bool."""
     preset = get_preset(preset)
     free, unknown = plan_cell_states(belief, preset)
+    return frontier_mask(free, unknown, planning_blocked(belief, preset))
+
+
+def frontier_mask(free: jax.Array, unknown: jax.Array, blocked: jax.Array) -> jax.Array:
+    """Frontier cells from the planning-cell states (:func:`plan_cell_states`) and the
+    planning map: free, unblocked, with an unknown 4-neighbour. All [Hp, Wp] bool."""
     # planning cells beyond the map edge are not unknown space
     up = jnp.pad(unknown, 1, constant_values=False)
     next_to_unknown = up[:-2, 1:-1] | up[2:, 1:-1] | up[1:-1, :-2] | up[1:-1, 2:]
-    return free & next_to_unknown & ~planning_blocked(belief, preset)
+    return free & next_to_unknown & ~blocked
 
 
 def unknown_side(unknown: jax.Array, cells: jax.Array, radius: int) -> jax.Array:

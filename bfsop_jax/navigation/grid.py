@@ -157,17 +157,24 @@ def plan_cell_to_xy(cells: jax.Array, preset: Preset | str) -> jax.Array:
     return jnp.stack([x, y], axis=-1)
 
 
-def motion_blocked(belief: jax.Array, agent_xy: jax.Array, preset: Preset | str) -> jax.Array:
+def motion_blocked(
+    belief: jax.Array,
+    agent_xy: jax.Array,
+    preset: Preset | str,
+    blocked: jax.Array | None = None,
+) -> jax.Array:
     """The planning map an agent at ``agent_xy`` [2] (metres) moves on: [Hp, Wp] bool.
 
     Equal to :func:`planning_blocked`, except when the agent's own cell is blocked (an
     obstacle it had not seen turned out to lie within the robot radius): then the cells
     within ``ESCAPE_RADIUS`` (Chebyshev) of it that hold no known-occupied fine cell of
     their own are open, so the agent can back out of the margin instead of being stuck
-    with every goal unreachable.
+    with every goal unreachable. ``blocked`` is the belief's :func:`planning_blocked` map
+    when the caller already has it.
     """
     preset = get_preset(preset)
-    blocked = planning_blocked(belief, preset)
+    if blocked is None:
+        blocked = planning_blocked(belief, preset)
     h, w = preset.grid_shape
     f = preset.plan_factor
     hp, wp = preset.plan_shape
