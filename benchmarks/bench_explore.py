@@ -29,7 +29,7 @@ import numpy as np
 
 from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
 from bfsop_jax.config import EVAL_SEED_START, get_preset
-from bfsop_jax.env import reset, step
+from bfsop_jax.env import observe, reset, step
 from bfsop_jax.navigation.distance import distance_field
 from bfsop_jax.navigation.frontiers import frontier_clusters, nearest_frontier
 from bfsop_jax.navigation.grid import motion_blocked
@@ -62,7 +62,7 @@ def run(preset_name: str, houses: int) -> dict:
     fbe = FBE()
     n_steps = max_macro_steps(preset.budget_m, preset)
     roll = jax.jit(jax.vmap(lambda s, m: continue_rollout(s, m, fbe, preset, n_steps)))
-    memory = jax.vmap(lambda s: fbe.init(s, preset))(states)
+    memory = jax.vmap(lambda s: fbe.init(observe(s), preset))(states)
 
     t = time.perf_counter()
     compiled = roll.lower(states, memory).compile()
@@ -77,7 +77,7 @@ def run(preset_name: str, houses: int) -> dict:
     moves = int(np.asarray(traj.moved).sum())
 
     # Where a macro step's time goes: the decision and the environment step, alone.
-    act = jax.jit(jax.vmap(lambda m, s: fbe.act(m, s, preset)))
+    act = jax.jit(jax.vmap(lambda m, s: fbe.act(m, observe(s), preset)))
     env_step = jax.jit(jax.vmap(lambda s, a: step(s, a, preset)))
     action, _, _ = act(memory, states)
     act_s = _best_time(act, memory, states)

@@ -23,7 +23,7 @@ from tqdm import tqdm
 from bfsop_jax import viz
 from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
 from bfsop_jax.config import EVAL_SEED_START, get_preset
-from bfsop_jax.env import reset
+from bfsop_jax.env import observe, reset
 from bfsop_jax.navigation.frontiers import frontier_clusters
 from bfsop_jax.world import TARGET_NAMES, generate_house, target_id
 
@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> dict:
     start = np.asarray(state.pose)[None]
     chunk = 10
     fbe = FBE()
-    memory = fbe.init(state, preset)
+    memory = fbe.init(observe(state), preset)
     run_chunk = jax.jit(lambda s, m: continue_rollout(s, m, fbe, preset, chunk))
     n_chunks = math.ceil(max_macro_steps(budget, preset) / chunk)
     trajectories = []

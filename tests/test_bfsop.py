@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bfsop_jax.agents import max_macro_steps
-from bfsop_jax.agents.bfsop import bfsop_rollout, greedy_estimate, vns_planner
+from bfsop_jax.agents import BFSOP, VNSPlanner, max_macro_steps, rollout
+from bfsop_jax.agents.bfsop import greedy_estimate
 from bfsop_jax.config import get_preset
 from bfsop_jax.env import reset
 from bfsop_jax.sop.types import SOPInstance, evaluate, validate
@@ -34,25 +34,24 @@ def test_bfsop_episode_switches_and_plans_feasible_tours():
     prior = jnp.full((N_CATEGORIES, N_TARGETS), 0.5)  # every receptacle is a landmark
     state = jax.jit(reset, static_argnums=3)(jax.random.key(7), house, 8, SMOKE, prior)
     n = max_macro_steps(SMOKE.budget_m, SMOKE, slack=2.0)
-    planner = vns_planner(0, max_iters=100, max_no_improve=50)
-    run = jax.jit(lambda s: bfsop_rollout(s, planner, SMOKE, n))
-    final, memory, decisions, poses = run(state)
+    strategy = BFSOP(VNSPlanner(0, max_iters=100, max_no_improve=50), record=True)
+    run = jax.jit(lambda s: rollout(s, strategy, SMOKE, n))
+    final, traj = run(state)
+    instances, plans = traj.record
 
-    assert int(memory.switches) >= 1
+    assert int(traj.switched.sum()) >= 1
     assert float(final.path_length) <= float(final.budget) + 1e-5
-    assert np.all(np.asarray(final.landmarks_seen)[np.asarray(memory.retired)])
-    switched = np.nonzero(np.asarray(decisions.switched))[0]
+    switched = np.nonzero(np.asarray(traj.planned))[0]
     assert len(switched) >= 1
     for t in switched:
-        inst = jax.tree_util.tree_map(lambda a, t=t: np.asarray(a)[t], decisions.instance)
+        inst = jax.tree_util.tree_map(lambda a, t=t: np.asarray(a)[t], instances)
         inst = SOPInstance.create(
             inst.cost, inst.set_id, inst.set_reward, 0, -1, inst.budget, inst.coords
         )
         validate(inst)
-        nodes = [int(v) for v in np.asarray(decisions.plan.nodes[t]) if v >= 0]
+        nodes = [int(v) for v in np.asarray(plans.nodes[t]) if v >= 0]
         reward, cost, feasible = evaluate(inst, nodes)
         assert feasible and nodes[0] == 0
-    touring = np.asarray(decisions.touring)
+    touring = np.asarray(traj.touring)[np.asarray(traj.active)]
     assert touring.any() and (~touring).any()
-    moved = np.isfinite(np.asarray(poses)[..., 0])
-    assert moved.any()
+    assert np.asarray(traj.moved).any()

@@ -23,7 +23,7 @@ import pytest
 
 from bfsop_jax.agents import FBE, FBEConfig, max_macro_steps, rollout
 from bfsop_jax.config import get_preset
-from bfsop_jax.env import make_action, reset, step
+from bfsop_jax.env import make_action, observe, reset, step
 from bfsop_jax.env.types import StepInfo
 from bfsop_jax.navigation.distance import distance_field
 from bfsop_jax.navigation.frontiers import frontier_cells, frontier_clusters, nearest_frontier
@@ -141,10 +141,11 @@ def test_arrival_at_a_frontier_faces_its_unknown_side():
     """Cause 3: reaching a frontier resolves it instead of leaving it behind the agent."""
     preset, state = _pocket_scene()
     fbe = FBE()
-    memory = fbe.init(state, preset)
+    obs = observe(state)
+    memory = fbe.init(obs, preset)
     act = jax.jit(fbe.act, static_argnums=2)
-    action, has_goal, memory = act(memory, state, preset)
-    assert bool(has_goal) and bool(action.look)
+    action, decision, memory = act(memory, obs, preset)
+    assert bool(decision.has_goal) and bool(action.look)
     after, info = jax.jit(step, static_argnums=2)(state, action, preset)
     assert bool(info.arrived)
     assert int(info.newly_known) > 0
@@ -158,8 +159,9 @@ def test_a_goal_without_progress_is_dropped():
     """Cause 3, second half: a goal that yields nothing is given up after ``patience``."""
     preset, state = _pocket_scene()
     fbe = FBE(FBEConfig(patience=2))
-    memory = fbe.init(state, preset)
-    action, _, memory = fbe.act(memory, state, preset)
+    obs = observe(state)
+    memory = fbe.init(obs, preset)
+    action, _, memory = fbe.act(memory, obs, preset)
     first = np.asarray(memory.goal)
     k = preset.micro_steps
     nothing = StepInfo(
@@ -171,25 +173,28 @@ def test_a_goal_without_progress_is_dropped():
         unreachable=jnp.bool_(False),
         new_found=jnp.int32(0),
         newly_known=jnp.int32(0),
+        path_lengths=jnp.zeros((k,)),
+        found_counts=jnp.zeros((k,), jnp.int32),
     )
-    memory = fbe.update(memory, state, state, nothing)
+    memory = fbe.update(memory, obs, obs, nothing)
     assert int(memory.n_dropped) == 0  # one step without progress is tolerated
-    _, _, memory = fbe.act(memory, state, preset)
-    memory = fbe.update(memory, state, state, nothing)
+    _, _, memory = fbe.act(memory, obs, preset)
+    memory = fbe.update(memory, obs, obs, nothing)
     assert int(memory.n_dropped) == 1
     np.testing.assert_array_equal(np.asarray(memory.dropped[0]), first)
-    _, has_goal, memory = fbe.act(memory, state, preset)
-    assert bool(has_goal)
+    _, decision, memory = fbe.act(memory, obs, preset)
+    assert bool(decision.has_goal)
     second = np.asarray(memory.goal)
     assert np.max(np.abs(second - first)) > fbe.config.drop_radius
     # progress resets the count
     moved = nothing.replace(travelled=jnp.float32(0.2))
-    memory = fbe.update(fbe.update(memory, state, state, nothing), state, state, moved)
+    memory = fbe.update(fbe.update(memory, obs, obs, nothing), obs, obs, moved)
     assert int(memory.stalled) == 0 and int(memory.n_dropped) == 1
 
 
 def test_goal_cell_is_the_agents_cell_when_it_stands_on_the_frontier():
     preset, state = _pocket_scene()
-    action, _, _ = FBE().act(FBE().init(state, preset), state, preset)
+    obs = observe(state)
+    action, _, _ = FBE().act(FBE().init(obs, preset), obs, preset)
     goal = np.asarray(xy_to_plan_cell(action.goal_xy, preset))
     assert goal[0] == 34  # the frontier row under the block

@@ -23,8 +23,9 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from bfsop_jax.agents.rollout import Decision, explore_decision
 from bfsop_jax.config import Preset
-from bfsop_jax.env.types import Action, EnvState, StepInfo
+from bfsop_jax.env.types import Action, Observation, StepInfo
 from bfsop_jax.navigation.distance import distance_field
 from bfsop_jax.navigation.frontiers import (
     cluster_frontier_cells,
@@ -70,7 +71,7 @@ class FBE:
 
     config: FBEConfig = FBEConfig()
 
-    def init(self, state: EnvState, preset: Preset) -> FBEMemory:
+    def init(self, obs: Observation, preset: Preset) -> FBEMemory:
         g = self.config.max_dropped
         return FBEMemory(
             goal=jnp.full((2,), -1, jnp.int32),
@@ -81,25 +82,32 @@ class FBE:
         )
 
     def act(
-        self, memory: FBEMemory, state: EnvState, preset: Preset
-    ) -> tuple[Action, jax.Array, FBEMemory]:
+        self, memory: FBEMemory, obs: Observation, preset: Preset
+    ) -> tuple[Action, Decision, FBEMemory]:
         """The nearest frontier not dropped, as an action facing its unknown side.
 
-        Returns ``(action, has_goal, memory)``; ``has_goal`` is false when no frontier is
-        reachable, in which case the action keeps the agent where it is.
+        Returns ``(action, decision, memory)``; ``decision.has_goal`` is false when no
+        frontier is reachable, in which case the action keeps the agent where it is.
         """
+        action, has_goal, memory = self.explore(memory, obs, preset)
+        return action, explore_decision(has_goal), memory
+
+    def explore(
+        self, memory: FBEMemory, obs: Observation, preset: Preset
+    ) -> tuple[Action, jax.Array, FBEMemory]:
+        """:meth:`act` with a bare ``has_goal`` (bool []), for strategies built on FBE."""
         cfg = self.config
         # One planning map and one pass over the planning-cell states serve the motion
         # map, the frontier cells and the look direction.
-        blocked = planning_blocked(state.belief, preset)
-        free, unknown = plan_cell_states(state.belief, preset)
-        motion = motion_blocked(state.belief, state.pose[:2], preset, blocked)
-        field = distance_field(motion, state.pose[:2], preset)
+        blocked = planning_blocked(obs.belief, preset)
+        free, unknown = plan_cell_states(obs.belief, preset)
+        motion = motion_blocked(obs.belief, obs.pose[:2], preset, blocked)
+        field = distance_field(motion, obs.pose[:2], preset)
         cells = frontier_mask(free, unknown, blocked) & ~_near_dropped(memory, cfg, preset)
         frontiers = cluster_frontier_cells(cells, preset)
         index, _ = nearest_frontier(frontiers, field, preset)
         has_goal = index >= 0
-        goal_xy = jnp.where(has_goal, frontiers.xy[jnp.maximum(index, 0)], state.pose[:2])
+        goal_xy = jnp.where(has_goal, frontiers.xy[jnp.maximum(index, 0)], obs.pose[:2])
         goal = xy_to_plan_cell(goal_xy, preset)
         side = unknown_side(unknown, goal, cfg.look_radius)
         look = has_goal & jnp.any(side != 0)
@@ -110,7 +118,7 @@ class FBE:
         return action, has_goal, memory
 
     def update(
-        self, memory: FBEMemory, before: EnvState, after: EnvState, info: StepInfo
+        self, memory: FBEMemory, before: Observation, after: Observation, info: StepInfo
     ) -> FBEMemory:
         """Count macro steps without progress; drop the goal after ``patience`` of them."""
         cfg = self.config

@@ -28,11 +28,10 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from bfsop_jax.agents import FBE, max_macro_steps, rollout
-from bfsop_jax.agents.bfsop import bfsop_rollout, vns_planner
+from bfsop_jax.agents import BFSOP, FBE, VNSPlanner, max_macro_steps, rollout
 from bfsop_jax.config import EVAL_SEED_START, Preset, get_preset
 from bfsop_jax.data.shards import ShardStore
-from bfsop_jax.env import reset
+from bfsop_jax.env import observe, reset
 from bfsop_jax.env.types import EnvState
 from bfsop_jax.navigation.distance import distance_field
 from bfsop_jax.navigation.grid import plan_cell_to_xy, planning_blocked
@@ -134,13 +133,13 @@ def virtual_tasks(
     keep = jax.random.bernoulli(
         k_keep, config.keep_landmark, (n_tasks,) + state.receptacles_seen.shape
     )
-    house = state.house
+    obs = observe(state)  # the run's detections only, never the true house
 
     def one(start, budget, category, keep):
         candidates = state.receptacles_seen & keep
         inst, _ = build_instance(
-            state.belief, start, budget, candidates, house.object_category, house.object_xy,
-            house.object_half_extent, state.prior, category, preset,
+            obs.belief, start, budget, candidates, obs.object_category, obs.object_xy,
+            obs.object_half_extent, obs.prior, category, preset,
         )  # fmt: skip
         return inst
 
@@ -168,15 +167,16 @@ def on_trajectory_decisions(
 ) -> tuple[SOPInstance, Solution, jax.Array]:
     """Run one BF-SOP episode with the VNS planner; return every step's decision record.
 
-    Returns ``(instances [S], plans [S], switched [S])`` for S macro steps; the records
-    with ``switched`` are the exploitation decisions (instance on the online map at that
+    Returns ``(instances [S], plans [S], planned [S])`` for S macro steps; the records
+    with ``planned`` are the exploitation decisions (instance on the online map at that
     moment, the teacher's tour).
     """  # fmt: skip
     n_steps = max_macro_steps(preset.budget_m, preset)
     state = reset(key, house, category, preset, prior)
-    planner = vns_planner(seed=0, max_iters=config.vns_iters, max_no_improve=config.vns_no_improve)
-    _, _, decisions, _ = bfsop_rollout(state, planner, preset, n_steps)
-    return decisions.instance, decisions.plan, decisions.switched
+    planner = VNSPlanner(seed=0, max_iters=config.vns_iters, max_no_improve=config.vns_no_improve)
+    _, traj = rollout(state, BFSOP(planner=planner, record=True), preset, n_steps)
+    instances, plans = traj.record
+    return instances, plans, traj.planned
 
 
 def _present_category(houses, j: int, key: jax.Array) -> int:

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bfsop_jax.config import Preset, get_preset
-from bfsop_jax.env.types import Action, EnvState, StepInfo
+from bfsop_jax.env.types import Action, EnvState, Observation, StepInfo
 from bfsop_jax.navigation.distance import distance_field
 from bfsop_jax.navigation.grid import (
     cell_blocked,
@@ -45,7 +45,8 @@ from bfsop_jax.navigation.grid import (
     xy_to_plan_cell,
 )
 from bfsop_jax.navigation.path import NEIGHBOURS, move_headings, move_lengths, next_cell
-from bfsop_jax.sensing.detection import landmarks_of_interest, observe, verified_targets
+from bfsop_jax.sensing.detection import landmarks_of_interest, verified_targets
+from bfsop_jax.sensing.detection import observe as detect
 from bfsop_jax.sensing.mapping import (
     ANGLE_UNITS,
     bearing_units,
@@ -56,7 +57,7 @@ from bfsop_jax.sensing.mapping import (
 from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS, is_receptacle
 from bfsop_jax.world.types import House
 
-__all__ = ["reset", "step", "sense", "make_action", "sample_start_pose"]
+__all__ = ["reset", "step", "sense", "observe", "make_action", "sample_start_pose"]
 
 
 def sense(state: EnvState, pose: jax.Array, preset: Preset, active: jax.Array = True) -> EnvState:
@@ -66,7 +67,7 @@ def sense(state: EnvState, pose: jax.Array, preset: Preset, active: jax.Array = 
     without ``lax.cond`` (which becomes a select under ``vmap`` anyway).
     """
     belief = update_belief(state.belief, state.house.occupied, pose, preset)
-    det = observe(state.house, pose, preset)
+    det = detect(state.house, pose, preset)
     found = verified_targets(det, state.house, state.category, preset)
     lois = landmarks_of_interest(det, state.house, state.prior, state.category, preset)
     # Any large enough receptacle, so a partial map can later pose tasks of any category.
@@ -81,6 +82,32 @@ def sense(state: EnvState, pose: jax.Array, preset: Preset, active: jax.Array = 
         found=state.found | (found & active),
         landmarks_seen=state.landmarks_seen | (lois & active),
         receptacles_seen=state.receptacles_seen | (receptacles & active),
+    )
+
+
+def observe(state: EnvState) -> Observation:
+    """The agent's view of ``state``: its map, pose, budget and what it has detected.
+
+    An object slot is visible once the object was detected: a receptacle segmented at
+    landmark size, a landmark of interest, or a verified target. Everything else about the
+    true house (its occupancy, unseen objects, the number of targets) stays hidden.
+    """
+    house = state.house
+    seen = state.receptacles_seen | state.landmarks_seen | state.found
+    return Observation(
+        belief=state.belief,
+        pose=state.pose,
+        path_length=state.path_length,
+        budget=state.budget,
+        category=state.category,
+        prior=state.prior,
+        object_seen=seen,
+        object_category=jnp.where(seen, house.object_category, -1),
+        object_xy=jnp.where(seen[:, None], house.object_xy, 0.0),
+        object_half_extent=jnp.where(seen[:, None], house.object_half_extent, 0.0),
+        landmark=state.landmarks_seen,
+        found=state.found,
+        done=state.done,
     )
 
 
@@ -244,12 +271,20 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
             blocked | (wants_move & refused),
             unreachable | (active & ~ok),
         )
-        return carry, (state.pose, moving, jnp.where(moving, travelled, 0.0))
+        out = (
+            state.pose,
+            moving,
+            jnp.where(moving, travelled, 0.0),
+            state.path_length,
+            state.found.sum().astype(jnp.int32),
+        )
+        return carry, out
 
     init = (state, jnp.zeros((), bool), jnp.zeros((), bool), jnp.zeros((), bool))
-    (state, arrived, blocked, unreachable), (poses, moved, travelled) = jax.lax.scan(
+    (state, arrived, blocked, unreachable), micro = jax.lax.scan(
         motion_step, init, None, length=preset.micro_steps
     )
+    poses, moved, travelled, path_lengths, found_counts = micro
 
     # On arrival at a viewpoint: face the landmark and sense once more (turning is free).
     facing = state.pose.at[2].set(
@@ -267,6 +302,8 @@ def step(state: EnvState, action: Action, preset: Preset | str) -> tuple[EnvStat
         blocked=blocked,
         unreachable=unreachable,
         new_found=(state.found.sum() - found_before).astype(jnp.int32),
+        path_lengths=path_lengths,
+        found_counts=found_counts,
         newly_known=_known_count(state.belief, preset) - known_before,
     )
     return state, info

@@ -1,10 +1,12 @@
 """The VNS teacher on batches: a process pool on the host, and a JAX host callback.
 
 ``solve_vns_batch`` labels a batch of NumPy instances on all CPU cores; ``vns_callback``
-calls it from jitted JAX code through ``jax.pure_callback``. JAX runs its own threads,
-so worker processes are started with the ``spawn`` method (never ``fork`` after JAX has
-started) and the pool is created once and reused across calls. A batch of one is solved
-in the calling process.
+calls it from jitted JAX code through ``jax.pure_callback``; ``vns_masked_callback`` is
+the planner form used inside (vmapped) rollouts: it takes a per-row mask and solves only
+the rows that ask, so a batch of episodes pays for the teacher only where one switches.
+JAX runs its own threads, so worker processes are started with the ``spawn`` method
+(never ``fork`` after JAX has started) and the pool is created once and reused across
+calls. A batch of one is solved in the calling process.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import dataclasses
 import functools
 import multiprocessing
 import os
+import time
 from typing import Any
 
 import jax
@@ -24,11 +27,20 @@ import numpy as np
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.sop.vns import solve_vns
 
-__all__ = ["solve_vns_batch", "vns_callback", "shutdown_pool"]
+__all__ = [
+    "callback_stats",
+    "reset_callback_stats",
+    "shutdown_pool",
+    "solve_vns_batch",
+    "vns_callback",
+    "vns_masked_callback",
+]
 
 _FIELDS = dataclasses.fields(SOPInstance)
 _POOL: concurrent.futures.ProcessPoolExecutor | None = None
 _POOL_SIZE = 0
+# Host-side tally of the masked planner callback: calls, rows solved, wall seconds.
+_STATS = {"calls": 0, "rows": 0, "seconds": 0.0}
 
 
 def _pool(processes: int) -> concurrent.futures.ProcessPoolExecutor:
@@ -129,3 +141,78 @@ def vns_callback(instances: SOPInstance, seeds: jax.Array, **vns_kwargs: Any) ->
 
 def _host_solve(instances: SOPInstance, seeds: np.ndarray, **vns_kwargs: Any) -> Solution:
     return solve_vns_batch(instances, np.asarray(seeds), **vns_kwargs)
+
+
+def callback_stats() -> dict[str, float]:
+    """Totals of :func:`vns_masked_callback` since the last reset.
+
+    ``calls`` (host calls that solved at least one row), ``rows`` (instances solved) and
+    ``seconds`` (host wall time spent solving them, all workers together).
+    """
+    return dict(_STATS)
+
+
+def reset_callback_stats() -> None:
+    """Zero the :func:`callback_stats` tally."""
+    _STATS.update(calls=0, rows=0, seconds=0.0)
+
+
+def vns_masked_callback(
+    instance: SOPInstance, mask: jax.Array, seed: int = 0, **vns_kwargs: Any
+) -> Solution:
+    """The VNS teacher as an in-loop planner: solve ``instance`` only where ``mask`` holds.
+
+    Written for one instance (``set_id`` [N]) and vmappable: under ``jax.vmap`` the host
+    receives the whole batch at once with its mask, solves the masked rows on all CPU
+    cores (:func:`solve_vns_batch`) and returns an empty plan (start node only, reward
+    and cost 0) for the others.
+
+    Args:
+        instance: one SOP instance (JAX arrays, may be traced).
+        mask: bool [] (per row under ``vmap``).
+        seed: VNS seed, the same for every row.
+        **vns_kwargs: static options for :func:`solve_vns`.
+    """
+    length = plan_length(instance.set_reward.shape[-1])
+    shapes = Solution(
+        nodes=jax.ShapeDtypeStruct((length,), jnp.int32),
+        reward=jax.ShapeDtypeStruct((), jnp.float32),
+        cost=jax.ShapeDtypeStruct((), jnp.float32),
+    )
+    host = functools.partial(_host_solve_masked, seed=int(seed), **vns_kwargs)
+    return jax.pure_callback(
+        host, shapes, instance, jnp.asarray(mask, bool), vmap_method="broadcast_all"
+    )
+
+
+def _host_solve_masked(
+    instance: SOPInstance, mask: np.ndarray, seed: int, **vns_kwargs: Any
+) -> Solution:
+    mask = np.asarray(mask, bool)
+    lead = mask.shape
+    n_nodes = instance.set_id.shape[-1]
+    n_sets = instance.set_reward.shape[-1]
+    flat = jax.tree_util.tree_map(
+        lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[len(lead) :]), instance
+    )
+    rows = np.flatnonzero(mask.reshape(-1))
+    length = plan_length(n_sets)
+    total = int(np.prod(lead, dtype=np.int64))
+    nodes = np.full((total, length), -1, np.int32)
+    nodes[:, 0] = np.asarray(flat.start).reshape(total)
+    reward = np.zeros(total, np.float32)
+    cost = np.zeros(total, np.float32)
+    if rows.size:
+        t0 = time.perf_counter()
+        picked = jax.tree_util.tree_map(lambda a: a[rows], flat)
+        sol = solve_vns_batch(picked, np.full(rows.size, seed), **vns_kwargs)
+        _STATS["seconds"] += time.perf_counter() - t0
+        _STATS["calls"] += 1
+        _STATS["rows"] += int(rows.size)
+        nodes[rows], reward[rows], cost[rows] = sol.nodes, sol.reward, sol.cost
+    assert n_nodes == flat.set_id.shape[-1]
+    return Solution(
+        nodes=nodes.reshape(lead + (length,)),
+        reward=reward.reshape(lead),
+        cost=cost.reshape(lead),
+    )

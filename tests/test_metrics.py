@@ -1,0 +1,269 @@
+"""Tests for the episode metrics (optimal visit length, PPL, revisits, bootstrap)."""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import numpy as np
+import pytest
+
+from bfsop_jax.metrics import (
+    EXACT_FORCE_MAX,
+    EXACT_MAX,
+    bootstrap_ci,
+    optimal_visit_length,
+    paired_bootstrap_ci,
+    ppl,
+    revisit_fraction,
+)
+
+
+def _brute_force(d: np.ndarray) -> float:
+    f = d.shape[0] - 1
+    if f == 0:
+        return 0.0
+    best = np.inf
+    for perm in itertools.permutations(range(1, f + 1)):
+        path = (0, *perm)
+        best = min(best, sum(d[path[k], path[k + 1]] for k in range(f)))
+    return float(best)
+
+
+def _euclidean(rng: np.random.Generator, f: int) -> np.ndarray:
+    pts = rng.uniform(0.0, 20.0, size=(f + 1, 2))
+    return np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+
+
+# ----------------------------------------------------------------------- optimal visit length
+
+
+@pytest.mark.parametrize("f", range(8))
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_held_karp_matches_brute_force(f: int, symmetric: bool) -> None:
+    rng = np.random.default_rng(100 + f + 50 * symmetric)
+    for _ in range(3):
+        d = rng.uniform(0.5, 10.0, size=(f + 1, f + 1))
+        if symmetric:
+            d = (d + d.T) / 2
+        np.fill_diagonal(d, 0.0)
+        got = optimal_visit_length(d, exact=True)
+        assert got == pytest.approx(_brute_force(d), rel=1e-12, abs=1e-12)
+        assert optimal_visit_length(d) == got  # automatic mode is exact here
+
+
+@pytest.mark.parametrize("f", range(8, 13))
+def test_heuristic_never_below_exact_and_close(f: int) -> None:
+    rng = np.random.default_rng(f)
+    for _ in range(2):
+        d = _euclidean(rng, f)
+        ex = optimal_visit_length(d, exact=True)
+        heur = optimal_visit_length(d, exact=False)
+        assert heur >= ex - 1e-9
+        assert heur <= 1.3 * ex
+
+
+def test_heuristic_asymmetric_never_below_exact() -> None:
+    rng = np.random.default_rng(7)
+    for f in (5, 9):
+        d = rng.uniform(1.0, 10.0, size=(f + 1, f + 1))
+        assert optimal_visit_length(d, exact=False) >= optimal_visit_length(d, exact=True) - 1e-9
+
+
+def test_exact_f12_is_fast() -> None:
+    d = _euclidean(np.random.default_rng(3), EXACT_MAX)
+    t0 = time.perf_counter()
+    optimal_visit_length(d)
+    assert time.perf_counter() - t0 < 1.0
+
+
+def test_automatic_uses_heuristic_above_exact_max() -> None:
+    f = 15
+    d = _euclidean(np.random.default_rng(11), f)
+    auto = optimal_visit_length(d)
+    assert np.isfinite(auto)
+    assert auto == optimal_visit_length(d, exact=False)
+    assert auto >= d[0, 1:].max() - 1e-9
+
+
+def test_exact_forced_too_large_raises() -> None:
+    d = _euclidean(np.random.default_rng(0), EXACT_FORCE_MAX + 1)
+    with pytest.raises(ValueError, match="at most"):
+        optimal_visit_length(d, exact=True)
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_points_on_a_line(exact: bool) -> None:
+    x = np.array([0.0, 3.0, -1.0, 5.0, 2.0])  # start at 0: go left to -1, then right to 5
+    d = np.abs(x[:, None] - x[None, :])
+    assert optimal_visit_length(d, exact=exact) == pytest.approx(7.0)
+    x = np.array([0.0, 4.0, 1.0, 3.0, 2.0])
+    d = np.abs(x[:, None] - x[None, :])
+    assert optimal_visit_length(d, exact=exact) == pytest.approx(4.0)
+    x = np.arange(20.0)[::-1] - 0.0  # start at 19, targets 18..0 (heuristic regime)
+    d = np.abs(x[:, None] - x[None, :])
+    assert optimal_visit_length(d) == pytest.approx(19.0)
+
+
+def test_trivial_sizes() -> None:
+    assert optimal_visit_length(np.zeros((1, 1))) == 0.0
+    assert optimal_visit_length(np.array([[0.0, 2.5], [9.0, 0.0]])) == 2.5
+    assert optimal_visit_length(np.array([[0.0, 2.5], [9.0, 0.0]]), exact=False) == 2.5
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_inf_entries(exact: bool) -> None:
+    d = np.array(
+        [
+            [0.0, 1.0, np.inf],
+            [1.0, 0.0, 2.0],
+            [np.inf, 2.0, 0.0],
+        ]
+    )
+    assert optimal_visit_length(d, exact=exact) == pytest.approx(3.0)
+    d[1, 2] = d[2, 1] = np.inf  # node 2 unreachable
+    assert optimal_visit_length(d, exact=exact) == np.inf
+
+
+def test_heuristic_avoids_inf_edges_when_possible() -> None:
+    d = _euclidean(np.random.default_rng(5), 10)
+    d[0, 1:] = np.inf
+    d[0, 3] = 1.0  # only one way out of the start
+    d[[2, 5], 7] = np.inf
+    ex = optimal_visit_length(d, exact=True)
+    heur = optimal_visit_length(d, exact=False)
+    assert np.isfinite(ex) and np.isfinite(heur)
+    assert ex - 1e-9 <= heur <= 1.3 * ex
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        np.zeros((2, 3)),
+        np.zeros(3),
+        np.zeros((0, 0)),
+        np.array([[0.0, np.nan], [1.0, 0.0]]),
+        np.array([[0.0, -1.0], [1.0, 0.0]]),
+        np.array([[0.0, -np.inf], [1.0, 0.0]]),
+    ],
+)
+def test_bad_dist_raises(bad: np.ndarray) -> None:
+    with pytest.raises(ValueError):
+        optimal_visit_length(bad)
+
+
+# ----------------------------------------------------------------------------------------- PPL
+
+
+def test_ppl_hand_cases() -> None:
+    assert ppl(0, 3, 10.0, 5.0) == 0.0
+    assert ppl(0, 0, 0.0, 0.0) == 0.0
+    assert ppl(3, 3, 5.0, 5.0) == 1.0
+    assert ppl(3, 3, 4.0, 5.0) == 1.0  # capped at 1
+    assert ppl(2, 4, 10.0, 5.0) == pytest.approx(0.25)  # L = 2 l_opt -> P / 2
+    assert ppl(2, 2, 0.0, 0.0) == 1.0  # verified at the start without moving
+    assert isinstance(ppl(1, 2, 3.0, 3.0), float)
+
+
+def test_ppl_elementwise() -> None:
+    found = np.array([0, 1, 2, 2])
+    total = np.array([2, 2, 2, 2])
+    length = np.array([5.0, 4.0, 8.0, 0.0])
+    lopt = np.array([4.0, 4.0, 4.0, 0.0])
+    out = ppl(found, total, length, lopt)
+    assert isinstance(out, np.ndarray)
+    np.testing.assert_allclose(out, [0.0, 0.5, 0.5, 1.0])
+    np.testing.assert_allclose(ppl(found, 2, length, lopt), out)
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        (3, 2, 1.0, 1.0),
+        (-1, 2, 1.0, 1.0),
+        (1, 2, -1.0, 1.0),
+        (1, 2, 1.0, -1.0),
+        (1, 2, np.nan, 1.0),
+        (np.array([1, 2]), np.array([2, 2, 2]), 1.0, 1.0),
+    ],
+)
+def test_ppl_bad_input_raises(args: tuple) -> None:
+    with pytest.raises(ValueError):
+        ppl(*args)
+
+
+# ----------------------------------------------------------------------------------- revisits
+
+
+def test_revisit_back_and_forth() -> None:
+    start = np.array([4, 4])
+    cells = np.array([[4, 5], [4, 6], [4, 7], [4, 6], [4, 5], [4, 4]])
+    lengths = np.full(6, 0.25)
+    assert revisit_fraction(start, cells, lengths) == pytest.approx(0.5)
+
+
+def test_revisit_straight_and_empty() -> None:
+    start = np.array([0, 0])
+    cells = np.array([[1, 0], [2, 0], [3, 0], [3, 1]])
+    assert revisit_fraction(start, cells, np.array([1.0, 1.0, 2.0, 0.5])) == 0.0
+    assert revisit_fraction(start, np.zeros((0, 2), int), np.zeros(0)) == 0.0
+
+
+def test_revisit_weighted_by_length() -> None:
+    start = np.array([0, 0])
+    cells = np.array([[0, 1], [0, 0], [0, 1], [0, 2]])
+    lengths = np.array([1.0, 2.0, 3.0, 4.0])  # steps 2 and 3 are revisits
+    assert revisit_fraction(start, cells, lengths) == pytest.approx(0.5)
+
+
+def test_revisit_bad_shapes_raise() -> None:
+    with pytest.raises(ValueError):
+        revisit_fraction(np.array([0, 0]), np.zeros((3, 2), int), np.zeros(2))
+    with pytest.raises(ValueError):
+        revisit_fraction(np.array([0, 0]), np.zeros((3, 3), int), np.zeros(3))
+    with pytest.raises(ValueError):
+        revisit_fraction(np.array([0, 0]), np.zeros((1, 2), int), np.array([-1.0]))
+
+
+# ---------------------------------------------------------------------------------- bootstrap
+
+
+def test_bootstrap_contains_mean_and_deterministic() -> None:
+    v = np.random.default_rng(0).normal(2.0, 1.0, size=60)
+    lo, hi = bootstrap_ci(v)
+    assert lo < v.mean() < hi
+    assert bootstrap_ci(v) == (lo, hi)
+    assert bootstrap_ci(v, seed=1) != (lo, hi)
+
+
+def test_bootstrap_shrinks_with_more_data() -> None:
+    rng = np.random.default_rng(1)
+    small = rng.normal(0.0, 1.0, size=25)
+    large = rng.normal(0.0, 1.0, size=400)
+    w_small = np.subtract(*bootstrap_ci(small)[::-1])
+    w_large = np.subtract(*bootstrap_ci(large)[::-1])
+    assert w_large < w_small
+
+
+def test_bootstrap_edge_cases() -> None:
+    assert bootstrap_ci([3.5]) == (3.5, 3.5)
+    with pytest.raises(ValueError):
+        bootstrap_ci([])
+    with pytest.raises(ValueError):
+        bootstrap_ci([1.0, 2.0], level=1.5)
+
+
+def test_paired_bootstrap() -> None:
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=50)
+    assert paired_bootstrap_ci(a, a) == (0.0, 0.0, 0.0)
+    np.testing.assert_allclose(paired_bootstrap_ci(a - 0.1, a), -0.1, rtol=1e-12)
+    base = np.arange(50.0)
+    assert paired_bootstrap_ci(base + 0.5, base) == (0.5, 0.5, 0.5)
+    c = a + rng.normal(0.3, 0.5, size=50)
+    m, lo, hi = paired_bootstrap_ci(c, a)
+    assert m == pytest.approx(np.mean(c - a))
+    assert lo < m < hi
+    assert paired_bootstrap_ci(c, a) == (m, lo, hi)
+    with pytest.raises(ValueError):
+        paired_bootstrap_ci(a, a[:-1])
