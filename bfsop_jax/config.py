@@ -14,11 +14,21 @@ from __future__ import annotations
 import dataclasses
 import math
 
-__all__ = ["EVAL_SEED_START", "PRESET_NAMES", "Preset", "get_preset", "parse_seed_range"]
+__all__ = [
+    "EVAL_SEED_START",
+    "PRESET_NAMES",
+    "Preset",
+    "VALIDATION_SEED_START",
+    "get_preset",
+    "parse_seed_range",
+]
 
 # House seeds: training houses use seeds below EVAL_SEED_START, evaluation houses start
 # there, so the two never meet (SPEC 9.2).
 EVAL_SEED_START = 1_000_000
+# Validation houses (choosing baseline settings, budgets) start here: neither training
+# houses nor the held-out test houses of the evaluation.
+VALIDATION_SEED_START = 2_000_000
 
 
 @dataclasses.dataclass(frozen=True)

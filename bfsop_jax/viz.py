@@ -19,7 +19,14 @@ from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from bfsop_jax.world import constants as C  # noqa: E402
 from bfsop_jax.world.types import House  # noqa: E402
 
-__all__ = ["plot_belief", "plot_house", "plot_trajectory"]
+__all__ = [
+    "plot_belief",
+    "plot_category_ppl",
+    "plot_house",
+    "plot_ppl",
+    "plot_trajectories_side_by_side",
+    "plot_trajectory",
+]
 
 ROOM_COLOURS: tuple[str, ...] = ("#f6d8a8", "#cfe3c1", "#c9d8ef", "#d7ecef")  # by room type
 TARGET_COLOURS: tuple[str, ...] = (
@@ -279,5 +286,100 @@ def plot_trajectory(
         ax.scatter(f[:, 0], f[:, 1], s=90, marker="*", c="gold", edgecolors="black", zorder=10)
     if title is not None:
         ax.set_title(title)
+    _save(fig, path)
+    return fig
+
+
+METHOD_COLOURS: tuple[str, ...] = ("#7f7f7f", "#bcbd22", "#ff7f0e", "#2ca02c", "#1f77b4")
+
+
+def plot_ppl(
+    labels, means, intervals, path: str | Path | None = None, title: str | None = None
+) -> plt.Figure:
+    """Mean PPL per method with its 95 % interval (error bars).
+
+    Args: labels [n] method names, means [n], intervals [n, 2] (lo, hi).
+    """
+    means = np.asarray(means, float)
+    lo_hi = np.asarray(intervals, float).reshape(-1, 2)
+    fig, ax = plt.subplots(figsize=(1.3 * len(means) + 2.0, 3.6), dpi=110)
+    x = np.arange(len(means))
+    err = np.stack([means - lo_hi[:, 0], lo_hi[:, 1] - means])
+    colours = [METHOD_COLOURS[i % len(METHOD_COLOURS)] for i in range(len(means))]
+    ax.bar(x, means, color=colours, yerr=err, capsize=4, edgecolor="black", lw=0.6)
+    for xi, m in zip(x, means, strict=True):
+        ax.text(xi, m / 2, f"{m:.3f}", ha="center", va="center", fontsize=8, color="white")
+    ax.set_xticks(x, labels, rotation=15, ha="right", fontsize=8)
+    ax.set_ylabel("PPL (mean, 95% bootstrap CI)")
+    ax.set_ylim(0, max(1e-3, float(np.nanmax(lo_hi[:, 1]))) * 1.15)
+    ax.grid(axis="y", alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)
+    return fig
+
+
+def plot_category_ppl(
+    categories, labels, table, path: str | Path | None = None, title: str | None = None
+) -> plt.Figure:
+    """Mean PPL per target category (groups) and method (bars).
+
+    Args: categories [c] names, labels [n] method names, table [n, c] mean PPL.
+    """
+    table = np.asarray(table, float)
+    n, c = table.shape
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * c + 2.0), 3.6), dpi=110)
+    width = 0.8 / n
+    x = np.arange(c)
+    for i in range(n):
+        colour = METHOD_COLOURS[i % len(METHOD_COLOURS)]
+        offset = (i - (n - 1) / 2) * width
+        ax.bar(x + offset, table[i], width, label=labels[i], color=colour, ec="black", lw=0.4)
+    ax.set_xticks(x, categories, rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("PPL (mean over houses)")
+    ax.legend(fontsize=7, ncol=min(n, 3))
+    ax.grid(axis="y", alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)
+    return fig
+
+
+def plot_trajectories_side_by_side(
+    house: House,
+    runs,
+    path: str | Path | None = None,
+    title: str | None = None,
+) -> plt.Figure:
+    """Several methods' trajectories in the same house, one panel each.
+
+    Args:
+        house: the true house drawn underneath.
+        runs: list of ``(label, xy [S, 2], touring [S] bool, found_xy [F, 2])``;
+            exploration is red, touring blue, the start a circle and the end a cross.
+    """
+    h, w = house.grid_shape
+    cs = house.cell_size
+    aspect = (w * cs) / (h * cs)
+    fig, axes = plt.subplots(1, len(runs), figsize=(5.2 * aspect * len(runs) + 2.5, 5.6), dpi=110)
+    axes = np.atleast_1d(axes)
+    for ax, (label, xy, touring, found_xy) in zip(axes, runs, strict=True):
+        plot_trajectory(xy, ax=ax, house=house, touring=touring, found_xy=found_xy, title=label)
+        legend = ax.get_legend()
+        if legend is not None and ax is not axes[-1]:
+            legend.remove()
+    handles = [
+        Line2D([], [], color="#d62728", lw=1.6, label="exploration"),
+        Line2D([], [], color="#1f77b4", lw=1.6, label="touring"),
+        Line2D([], [], marker="o", ls="", mfc="none", mec="black", label="start"),
+        Line2D([], [], marker="x", ls="", color="black", label="end"),
+        Line2D([], [], marker="*", ls="", mfc="gold", mec="black", ms=10, label="found"),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=5, fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, 0.06, 1, 0.97))
     _save(fig, path)
     return fig

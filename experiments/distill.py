@@ -38,9 +38,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from bfsop_jax import solver_eval
 from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import DataConfig, generate_dataset, pose_tasks
+from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training import RunConfig, train
 from bfsop_jax.training.bc import evaluate_imitation

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from flax import nnx
 
-from bfsop_jax import solver_eval
 from bfsop_jax.config import EVAL_SEED_START
 from bfsop_jax.data.generate import DataConfig, pose_tasks
+from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.model import ModelConfig, StrategicTransformer
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.sop import evaluate, solve_vns

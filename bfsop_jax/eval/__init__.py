@@ -1,0 +1,1 @@
+"""Evaluation: the navigation benchmark (Table I) and the solver comparison (Tables II/III)."""

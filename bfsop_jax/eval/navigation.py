@@ -1,0 +1,684 @@
+"""The navigation benchmark: every strategy on the same episodes, scored by PPL (Table I).
+
+Protocol. An episode is (house, target category, start pose, budget). The default
+protocol runs every target category in each of the given held-out houses (9 x 10 = 90
+episodes). A category absent from a house is replaced by the next house after the range
+that has it and was not used for that category yet, so every category keeps its number
+of episodes. The start pose is drawn from a key fixed by (house, category), and the
+budget is the preset's, so every method sees exactly the same episodes.
+
+Methods. ``fbe``, ``bfs_global``, ``tfl_reactive``, ``bfsop_vns`` (the VNS teacher as
+planner) and ``bfsop_st`` (the Strategic Transformer with its 2-opt and budget gate). All
+share sensing, motion and both gates, and see only the agent's observation.
+
+Scoring (per episode, :mod:`bfsop_jax.metrics`):
+
+* progress P = found / total instances of the category in the house;
+* PPL = P * min(1, L_opt / L) with L the path length when the last target was found
+  (MultiON's convention; ``ppl_end`` uses the whole path);
+* L_opt: the shortest open path from the start through the *found* instances'
+  verification points, with geodesic distances on the true map. An instance's
+  verification point is the traversable planning cell within the verification distance
+  of its centre that is nearest to the start (geodesically); exact Held-Karp up to 12
+  instances;
+* path length, mode switches (tours started), planner calls, and the revisited-path
+  fraction (share of the path spent entering cells already visited: the ping-pong).
+
+Episodes run batched (``jax.vmap``) in chunks of ``batch`` episodes; each chunk's records
+are written atomically, so an interrupted evaluation resumes from the finished chunks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
+
+from bfsop_jax import metrics
+from bfsop_jax.agents import (
+    BFSOP,
+    FBE,
+    BFSGlobal,
+    BFSGlobalConfig,
+    TFLReactive,
+    TFLReactiveConfig,
+    TransformerPlanner,
+    VNSPlanner,
+    continue_rollout,
+    max_macro_steps,
+)
+from bfsop_jax.agents.tour import pending_landmarks
+from bfsop_jax.config import Preset
+from bfsop_jax.env import observe, reset
+from bfsop_jax.navigation.distance import distance_field, distance_matrix
+from bfsop_jax.navigation.grid import plan_cell_to_xy, true_blocked, xy_to_plan_cell
+from bfsop_jax.sop import callback as vns_host
+from bfsop_jax.sop.builder import build_instance
+from bfsop_jax.world.constants import N_TARGETS, TARGET_NAMES
+from bfsop_jax.world.types import House
+
+__all__ = [
+    "BASELINES",
+    "LABELS",
+    "METHODS",
+    "Episode",
+    "HouseSet",
+    "evaluate_navigation",
+    "make_strategy",
+    "protocol_episodes",
+    "summarise",
+]
+
+METHODS: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st")
+BASELINES: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive")
+LABELS: dict[str, str] = {
+    "fbe": "FBE",
+    "bfs_global": "BFS-Global",
+    "tfl_reactive": "TFL-Reactive",
+    "bfsop_vns": "BF-SOP (VNS)",
+    "bfsop_st": "BF-SOP (Transformer)",
+}
+_START_SALT = 7919  # reset key = fold_in(key(house seed), _START_SALT + category)
+_SEGMENT = 32  # macro steps per jitted rollout segment (progress and early stop)
+
+
+@dataclasses.dataclass(frozen=True)
+class Episode:
+    """One episode of the protocol: a house (seed or file index) and a target category."""
+
+    house: int
+    category: int
+
+    @property
+    def key(self) -> jax.Array:
+        """PRNG key of the start pose (the same for every method)."""
+        return jax.random.fold_in(jax.random.key(self.house), _START_SALT + self.category)
+
+
+class HouseSet:
+    """Houses by id: generated from seeds, or ProcTHOR files indexed 0, 1, ... (cached)."""
+
+    def __init__(self, preset: Preset, procthor_dir: str | os.PathLike | None = None):
+        self.preset = preset
+        self._cache: dict[int, House] = {}
+        self.files: list[Path] | None = None
+        if procthor_dir is not None:
+            from bfsop_jax.world import load_procthor_house
+
+            folder = Path(procthor_dir)
+            files = sorted(folder.glob("*.json")) if folder.is_dir() else []
+            if not files:
+                raise ValueError(f"--procthor-dir {folder}: no ProcTHOR house *.json files there")
+            self.files = files
+            self._load = lambda i: load_procthor_house(files[i], preset)
+        else:
+            from bfsop_jax.world.generator import generate_house
+
+            gen = jax.jit(generate_house, static_argnums=1)
+            self._load = lambda seed: gen(jax.random.key(seed), preset)
+
+    def __len__(self) -> int:
+        return len(self.files) if self.files is not None else 2**31
+
+    def name(self, house: int) -> str:
+        return self.files[house].stem if self.files is not None else str(house)
+
+    def __getitem__(self, house: int) -> House:
+        if house not in self._cache:
+            self._cache[house] = jax.device_get(self._load(house))
+        return self._cache[house]
+
+    def counts(self, house: int) -> np.ndarray:
+        """int [N_TARGETS]: instances of each target category in the house."""
+        cats = np.asarray(self[house].object_category)
+        return np.bincount(cats[(cats >= 0) & (cats < N_TARGETS)], minlength=N_TARGETS)
+
+
+def protocol_episodes(
+    houses: HouseSet, house_ids: Sequence[int], categories: Sequence[int], max_search: int = 200
+) -> list[Episode]:
+    """Every category in every house; an absent category moves on to the next house.
+
+    The replacement is the next house id after the range (in order) that holds the
+    category and was not used for it yet; after ``max_search`` houses without one (or at
+    the end of a ProcTHOR folder) that episode is dropped.
+    """
+    house_ids = list(house_ids)
+    if not house_ids:
+        raise ValueError("the house range is empty")
+    episodes = []
+    for c in categories:
+        spare = max(house_ids) + 1
+        for h in house_ids:
+            if houses.counts(h)[c] > 0:
+                episodes.append(Episode(h, c))
+                continue
+            for _ in range(max_search):
+                if spare >= len(houses):
+                    break
+                candidate, spare = spare, spare + 1
+                if houses.counts(candidate)[c] > 0:
+                    episodes.append(Episode(candidate, c))
+                    break
+    return episodes
+
+
+def make_strategy(
+    name: str, policy: Any = None, settings: dict[str, dict[str, Any]] | None = None
+) -> Any:
+    """The strategy behind a method name; ``settings`` override baseline config fields."""
+    settings = settings or {}
+    if name == "fbe":
+        return FBE()
+    if name == "bfs_global":
+        return BFSGlobal(BFSGlobalConfig(**settings.get(name, {})))
+    if name == "tfl_reactive":
+        return TFLReactive(TFLReactiveConfig(**settings.get(name, {})))
+    if name == "bfsop_vns":
+        return BFSOP(VNSPlanner(seed=0))
+    if name == "bfsop_st":
+        if policy is None:
+            raise ValueError("bfsop_st needs a StrategicPolicy")
+        return BFSOP(TransformerPlanner(policy))
+    raise ValueError(f"unknown method {name!r}; methods are {', '.join(METHODS)}")
+
+
+# -- episode geometry on the true map ------------------------------------------------------
+
+
+def _verification_matrix(
+    house: House, start_xy: jax.Array, targets: jax.Array, valid: jax.Array, preset: Preset
+) -> jax.Array:
+    """[S+1, S+1] geodesic distances (true map) between the start and targets' points.
+
+    ``targets`` int32 [S] object slots, ``valid`` bool [S]. Each target's point is the
+    traversable planning cell within ``verify_distance_m`` of its centre nearest to the
+    start; with none, its centre (snapped to the nearest free cell).
+    """
+    blocked = true_blocked(house.occupied, preset)
+    field = distance_field(blocked, start_xy, preset)
+    r = math.ceil(preset.verify_distance_m / preset.plan_cell_size)
+    d = np.arange(-r, r + 1)
+    offsets = jnp.asarray(np.stack(np.meshgrid(d, d, indexing="ij"), -1).reshape(-1, 2))
+    centre = house.object_xy[targets]  # [S, 2]
+    cells = xy_to_plan_cell(centre, preset)[:, None, :] + offsets[None]  # [S, C, 2]
+    hp, wp = preset.plan_shape
+    rows, cols = cells[..., 0], cells[..., 1]
+    inside = (rows >= 0) & (rows < hp) & (cols >= 0) & (cols < wp)
+    cells = jnp.clip(cells, 0, jnp.asarray([hp - 1, wp - 1]))
+    gap = plan_cell_to_xy(cells, preset) - centre[:, None]
+    near = jnp.sum(gap * gap, axis=-1) <= preset.verify_distance_m**2
+    cost = field[cells[..., 0], cells[..., 1]]
+    ok = inside & near & ~blocked[cells[..., 0], cells[..., 1]] & jnp.isfinite(cost)
+    best = jnp.argmin(jnp.where(ok, cost, jnp.inf), axis=1)
+    point = plan_cell_to_xy(cells[jnp.arange(cells.shape[0]), best], preset)
+    point = jnp.where(ok.any(axis=1)[:, None], point, centre)
+    points = jnp.concatenate([start_xy[None], point], axis=0)
+    return distance_matrix(blocked, points, jnp.concatenate([jnp.ones(1, bool), valid]), preset)
+
+
+# -- running episodes --------------------------------------------------------------------
+
+
+def _stack(trees: Sequence[Any]) -> Any:
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
+
+
+class _Runner:
+    """Jitted, vmapped pieces for one (method, preset), compiled once per batch size."""
+
+    def __init__(self, strategy: Any, preset: Preset, prior: jax.Array):
+        self.preset = preset
+        self.n_steps = max_macro_steps(preset.budget_m, preset)
+        self.reset = jax.jit(jax.vmap(lambda k, h, c, b: reset(k, h, c, preset, prior, b)))
+        self.init = jax.jit(jax.vmap(lambda s: strategy.init(observe(s), preset)))
+        self.roll = jax.jit(
+            jax.vmap(lambda s, m: continue_rollout(s, m, strategy, preset, _SEGMENT))
+        )
+        self.geometry = jax.jit(
+            jax.vmap(lambda h, s, t, v: _verification_matrix(h, s, t, v, preset))
+        )
+
+    def run(self, states, bar: tqdm | None) -> tuple[Any, Any]:
+        """Segments of ``_SEGMENT`` macro steps until every episode has stopped."""
+        memory = self.init(states)
+        parts = []
+        budget = np.asarray(states.budget)
+        for _ in range(math.ceil(self.n_steps / _SEGMENT)):
+            states, memory, traj = self.roll(states, memory)
+            traj = jax.device_get(traj)
+            parts.append(traj)
+            if bar is not None:
+                frac = float(np.mean(np.asarray(states.path_length) / budget))
+                bar.set_postfix_str(f"budget used {frac:.0%}")
+            if not np.asarray(traj.active)[:, -1].any():
+                break
+        traj = jax.tree_util.tree_map(lambda *a: np.concatenate(a, axis=1), *parts)
+        return jax.device_get(states), traj
+
+
+def _last_find_length(initial: int, traj: Any, b: int) -> tuple[float, float]:
+    """(L at the last verification, L at the end) of episode ``b`` (metres)."""
+    found = np.asarray(traj.found_count[b])
+    end = float(np.asarray(traj.path_length[b])[-1]) if len(found) else 0.0
+    total = int(found[-1]) if len(found) else initial
+    if total <= initial:
+        return (0.0 if total > 0 else end), end
+    t = int(np.argmax(found >= total))
+    micro = np.asarray(traj.micro_found[b, t])
+    k = np.flatnonzero(micro >= total)
+    at = traj.micro_length[b, t, k[0]] if len(k) else traj.path_length[b, t]
+    return float(at), end
+
+
+def _revisit(start_xy: np.ndarray, traj: Any, b: int, preset: Preset) -> float:
+    moved = np.asarray(traj.moved[b]).ravel()
+    lengths = np.diff(np.asarray(traj.micro_length[b]).ravel(), prepend=0.0)
+    xy = np.asarray(traj.poses[b, ..., :2]).reshape(-1, 2)[moved]
+    cells = np.floor(xy / preset.plan_cell_size).astype(np.int64)[:, ::-1]
+    start = np.floor(start_xy / preset.plan_cell_size).astype(np.int64)[::-1]
+    return metrics.revisit_fraction(start, cells, lengths[moved])
+
+
+def _episode_records(
+    method: str,
+    episodes: Sequence[Episode],
+    houses: HouseSet,
+    initial: Any,
+    final: Any,
+    traj: Any,
+    runner: _Runner,
+) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
+    """Per-episode metrics of one chunk, plus the compact paths kept for figures."""
+    preset = runner.preset
+    n = len(episodes)
+    targets = []
+    width = 1
+    for ep in episodes:
+        idx = np.flatnonzero(np.asarray(houses[ep.house].object_category) == ep.category)
+        targets.append(idx)
+        width = max(width, len(idx))
+    width = 8 * math.ceil(width / 8)  # few distinct shapes, few compilations
+    tgt = np.zeros((n, width), np.int32)
+    ok = np.zeros((n, width), bool)
+    for i, idx in enumerate(targets):
+        tgt[i, : len(idx)], ok[i, : len(idx)] = idx, True
+    house_batch = _stack([houses[ep.house] for ep in episodes])
+    start_xy = np.asarray(initial.pose)[:, :2]
+    dist = np.asarray(runner.geometry(house_batch, jnp.asarray(start_xy), tgt, ok))
+    records, paths = [], {}
+    for i, ep in enumerate(episodes):
+        found_mask = np.asarray(final.found[i])[targets[i]]
+        sel = np.concatenate([[0], 1 + np.flatnonzero(found_mask)])
+        l_opt = metrics.optimal_visit_length(dist[i][np.ix_(sel, sel)]) if len(sel) > 1 else 0.0
+        found, total = int(found_mask.sum()), len(targets[i])
+        initial_found = int(np.asarray(initial.found[i]).sum())
+        l_last, l_end = _last_find_length(initial_found, traj, i)
+        active = np.asarray(traj.active[i])
+        records.append({
+            "method": method,
+            "house_seed": int(ep.house),
+            "house": houses.name(ep.house),
+            "category": TARGET_NAMES[ep.category],
+            "found": found,
+            "total": total,
+            "progress": found / total,
+            "path_length": l_last,
+            "path_length_end": l_end,
+            "budget": float(np.asarray(final.budget[i])),
+            "l_opt": float(l_opt),
+            "ppl": float(metrics.ppl(found, total, l_last, l_opt)),
+            "ppl_end": float(metrics.ppl(found, total, l_end, l_opt)),
+            "switches": int(np.asarray(traj.switched[i]).sum()),
+            "planner_calls": int(np.asarray(traj.planned[i]).sum()),
+            "touring_steps": int(np.asarray(traj.touring[i]).sum()),
+            "macro_steps": int(active.sum()),
+            "revisit": _revisit(start_xy[i], traj, i, preset),
+        })  # fmt: skip
+        moved = np.asarray(traj.moved[i])
+        xy = np.asarray(traj.poses[i, ..., :2])[moved]
+        tour = np.broadcast_to(np.asarray(traj.touring[i])[:, None], moved.shape)[moved]
+        paths[f"{i}_xy"] = np.concatenate([start_xy[i][None], xy]).astype(np.float32)
+        paths[f"{i}_touring"] = np.concatenate([[False], tour])
+        obj_xy = np.asarray(houses[ep.house].object_xy)
+        paths[f"{i}_found"] = obj_xy[targets[i][found_mask]].astype(np.float32)
+    return records, paths
+
+
+# -- the evaluation ------------------------------------------------------------------------
+
+
+def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    _atomic_write(path, lambda p: p.write_text(json.dumps(obj, indent=1) + "\n"))
+
+
+def _planner_latency_ms(strategy: Any, final: Any, preset: Preset, repeats: int = 8) -> float:
+    """Median ms of one planner call (batch 1) on instances posed from final maps.
+
+    The instances are what the agent would plan at the end of its episodes (pending =
+    every detected landmark of interest), so their size matches the evaluation's.
+    """
+    planner = getattr(strategy, "planner", None)
+    if planner is None:
+        return float("nan")
+    obs = jax.vmap(observe)(final)
+
+    def pose(o):
+        pending = pending_landmarks(o, jnp.zeros_like(o.found))
+        inst, _ = build_instance(
+            o.belief, o.pose[:2], o.budget, pending, o.object_category, o.object_xy,
+            o.object_half_extent, o.prior, o.category, preset,
+        )  # fmt: skip
+        return inst
+
+    instances = jax.jit(jax.vmap(pose))(obs)
+    plan = jax.jit(lambda inst: planner(jnp.ones((), bool), inst))
+    times = []
+    for i in range(min(repeats + 1, instances.set_id.shape[0])):
+        inst = jax.tree_util.tree_map(lambda a, i=i: a[i], instances)
+        t0 = time.perf_counter()
+        jax.block_until_ready(plan(inst))
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * float(np.median(times[1:] if len(times) > 1 else times))
+
+
+def evaluate_navigation(
+    methods: Sequence[str],
+    episodes: Sequence[Episode],
+    houses: HouseSet,
+    out_dir: str | os.PathLike,
+    policy: Any = None,
+    settings: dict[str, dict[str, Any]] | None = None,
+    batch: int = 30,
+    prior: np.ndarray | None = None,
+    progress: bool = True,
+    protocol: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Run ``methods`` on ``episodes``; write and return ``results.json``'s content.
+
+    Args:
+        methods: names from :data:`METHODS`.
+        episodes: the protocol (:func:`protocol_episodes`), the same for every method.
+        houses: where the episodes' houses come from.
+        out_dir: gets ``results.json``, ``protocol.json`` and ``episodes/`` (per-chunk
+            records and paths; finished chunks are reused when the run is resumed).
+        policy: the Strategic Transformer for ``bfsop_st``.
+        settings: baseline config overrides, e.g. ``{"bfs_global": {"fraction": 0.4}}``.
+        batch: episodes per vmapped chunk (results do not depend on it).
+        protocol: extra description saved in ``protocol.json`` (preset, seeds, ...).
+    """
+    preset = houses.preset
+    out = Path(out_dir)
+    (out / "episodes").mkdir(parents=True, exist_ok=True)
+    if prior is None:
+        from bfsop_jax.world.prior import default_prior
+
+        prior = default_prior()
+    prior = jnp.asarray(prior, jnp.float32)
+    described = {
+        "preset": preset.name,
+        "budget_m": preset.budget_m,
+        "episodes": [[e.house, TARGET_NAMES[e.category]] for e in episodes],
+        "settings": settings or {},
+        "batch": batch,
+        **(protocol or {}),
+    }
+    saved = out / "protocol.json"
+    if saved.exists():
+        before = json.loads(saved.read_text())
+        same = {k: before.get(k) for k in ("preset", "budget_m", "episodes", "settings")}
+        if same != {k: described[k] for k in same}:
+            raise ValueError(
+                f"{out} holds a different evaluation (preset, budget, episodes or settings "
+                "differ); use another --out directory"
+            )
+        described["batch"] = before.get("batch", batch)
+        batch = described["batch"]
+    _write_json(saved, described)
+
+    chunks = [list(episodes[i : i + batch]) for i in range(0, len(episodes), batch)]
+    all_records: list[dict[str, Any]] = []
+    timings: dict[str, dict[str, float]] = {}
+    for method in methods:
+        strategy = make_strategy(method, policy, settings)
+        runner: _Runner | None = None
+        bar = tqdm(total=len(episodes), desc=LABELS[method], unit="ep", disable=not progress)
+        wall, first_final = 0.0, None
+        vns_host.reset_callback_stats()
+        method_records: list[dict[str, Any]] = []
+        for j, chunk in enumerate(chunks):
+            done_file = out / "episodes" / f"{method}_{j:03d}.json"
+            if done_file.exists():
+                method_records.extend(json.loads(done_file.read_text())["episodes"])
+                bar.update(len(chunk))
+                continue
+            runner = runner or _Runner(strategy, preset, prior)
+            padded = chunk + [chunk[-1]] * (batch - len(chunk))  # one compiled batch size
+            keys = jnp.stack([e.key for e in padded])
+            hs = _stack([houses[e.house] for e in padded])
+            cats = jnp.asarray([e.category for e in padded], jnp.int32)
+            budgets = jnp.full((batch,), preset.budget_m, jnp.float32)
+            t0 = time.perf_counter()
+            initial = runner.reset(keys, hs, cats, budgets)
+            final, traj = runner.run(initial, bar)
+            wall += time.perf_counter() - t0
+            size = len(chunk)
+            take = lambda tree, n=size: jax.tree_util.tree_map(lambda a: a[:n], tree)
+            records, paths = _episode_records(
+                method, chunk, houses, take(jax.device_get(initial)), take(final), take(traj),
+                runner,
+            )  # fmt: skip
+            first_final = take(final) if first_final is None else first_final
+            _atomic_write(
+                out / "episodes" / f"{method}_{j:03d}.npz",
+                lambda p, paths=paths: np.savez_compressed(open(p, "wb"), **paths),
+            )
+            _write_json(done_file, {"episodes": records, "wall_s": wall})
+            method_records.extend(records)
+            bar.update(len(chunk))
+        bar.close()
+        stats = vns_host.callback_stats()
+        timings[method] = {"rollout_wall_s": wall, "vns_rows": stats["rows"],
+                           "vns_seconds": stats["seconds"]}  # fmt: skip
+        # Planner latency at batch 1, measured apart from the rollout (never mixed in).
+        latency = float("nan")
+        if first_final is not None and method.startswith("bfsop"):
+            latency = _planner_latency_ms(strategy, first_final, preset)
+            timings[method]["planner_ms"] = latency
+        for r in method_records:
+            r.setdefault("planner_ms", latency)
+        all_records.extend(method_records)
+    result = {
+        "preset": preset.name,
+        "budget_m": preset.budget_m,
+        "methods": summarise(all_records, methods),
+        "timings": timings,
+        "episodes": all_records,
+    }
+    _write_json(out / "results.json", result)
+    return result
+
+
+def summarise(records: Iterable[dict[str, Any]], methods: Sequence[str]) -> dict[str, Any]:
+    """Per-method means with 95 % bootstrap intervals (episodes are the resampled unit)."""
+    records = list(records)
+    out = {}
+    for m in methods:
+        rows = [r for r in records if r["method"] == m]
+        if not rows:
+            continue
+        col = lambda k, rows=rows: np.asarray([r[k] for r in rows], float)
+        ppl = col("ppl")
+        out[m] = {
+            "label": LABELS[m],
+            "episodes": len(rows),
+            "ppl_mean": float(ppl.mean()),
+            "ppl_ci95": list(metrics.bootstrap_ci(ppl)),
+            "ppl_end_mean": float(col("ppl_end").mean()),
+            "progress_mean": float(col("progress").mean()),
+            "progress_ci95": list(metrics.bootstrap_ci(col("progress"))),
+            "found_all_fraction": float(np.mean(col("found") == col("total"))),
+            "path_length_mean": float(col("path_length").mean()),
+            "path_length_end_mean": float(col("path_length_end").mean()),
+            "switches_mean": float(col("switches").mean()),
+            "planner_calls_mean": float(col("planner_calls").mean()),
+            "revisit_mean": float(col("revisit").mean()),
+            "planner_ms": float(rows[0].get("planner_ms", float("nan"))),
+        }
+    return out
+
+
+def paired(records: Sequence[dict[str, Any]], a: str, b: str) -> tuple[float, float, float]:
+    """Paired bootstrap (mean, lo, hi) of PPL(a) - PPL(b) over their shared episodes."""
+    key = lambda r: (r["house_seed"], r["category"])
+    pa = {key(r): r["ppl"] for r in records if r["method"] == a}
+    pb = {key(r): r["ppl"] for r in records if r["method"] == b}
+    shared = sorted(set(pa) & set(pb))
+    if not shared:
+        raise ValueError(f"methods {a} and {b} share no episode")
+    return metrics.paired_bootstrap_ci([pa[k] for k in shared], [pb[k] for k in shared])
+
+
+__all__ += ["paired"]
+
+
+def _ci(lo_hi: Sequence[float]) -> str:
+    return f"[{lo_hi[0]:.3f}, {lo_hi[1]:.3f}]"
+
+
+def write_table1(result: dict[str, Any], path: str | os.PathLike, header: str = "") -> str:
+    """Table I (markdown): mean PPL per method with 95 % bootstrap intervals, and paired
+    differences of BF-SOP (Transformer) with the best baseline and with BF-SOP (VNS)."""
+    methods = result["methods"]
+    lines = [header] if header else []
+    lines += [
+        "| method | PPL [95% CI] | PPL (episode end) | progress | L (m) | L end (m) | "
+        "tours | planner calls | planner ms | revisit | found all |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in methods.values():
+        ms = "" if not np.isfinite(s["planner_ms"]) else f"{s['planner_ms']:.1f}"
+        lines.append(
+            f"| {s['label']} | {s['ppl_mean']:.3f} {_ci(s['ppl_ci95'])} | {s['ppl_end_mean']:.3f} "
+            f"| {s['progress_mean']:.3f} | {s['path_length_mean']:.1f} "
+            f"| {s['path_length_end_mean']:.1f} | {s['switches_mean']:.1f} "
+            f"| {s['planner_calls_mean']:.1f} | {ms} | {s['revisit_mean']:.3f} "
+            f"| {s['found_all_fraction']:.2f} |"
+        )
+    episodes = result["episodes"]
+    n = max(s["episodes"] for s in methods.values())
+    lines += ["", f"{n} episodes per method, the same for every method; preset "
+              f"`{result['preset']}`, budget {result['budget_m']:g} m."]  # fmt: skip
+    baselines = [m for m in BASELINES if m in methods]
+    comparisons = []
+    if "bfsop_st" in methods and baselines:
+        best = max(baselines, key=lambda m: methods[m]["ppl_mean"])
+        comparisons.append(("bfsop_st", best, "best baseline"))
+    if "bfsop_st" in methods and "bfsop_vns" in methods:
+        comparisons.append(("bfsop_st", "bfsop_vns", "teacher"))
+    if "bfsop_vns" in methods and baselines:
+        best = max(baselines, key=lambda m: methods[m]["ppl_mean"])
+        comparisons.append(("bfsop_vns", best, "best baseline"))
+    if comparisons:
+        lines += [
+            "", "Paired differences (bootstrap over shared episodes, 95% CI):", "",
+            "| comparison | PPL difference [95% CI] | PPL ratio |", "|---|---|---|",
+        ]  # fmt: skip
+        for a, b, what in comparisons:
+            d, lo, hi = paired(episodes, a, b)
+            ratio = methods[a]["ppl_mean"] / max(methods[b]["ppl_mean"], 1e-12)
+            lines.append(
+                f"| {LABELS[a]} - {LABELS[b]} ({what}) | {d:+.3f} [{lo:+.3f}, {hi:+.3f}] "
+                f"| {ratio:.2f}x |"
+            )
+    text = "\n".join(lines) + "\n"
+    _atomic_write(Path(path), lambda p: p.write_text(text))
+    return text
+
+
+def load_paths(out_dir: str | os.PathLike, method: str) -> list[dict[str, np.ndarray]]:
+    """A method's saved paths in episode order: ``[{"xy": [S, 2], "touring": [S], "found":
+    [F, 2]}]`` (positions in metres; ``found``: the verified instances)."""
+    out = Path(out_dir) / "episodes"
+    paths = []
+    for f in sorted(out.glob(f"{method}_*.npz")):
+        with np.load(f) as z:
+            n = len([k for k in z.files if k.endswith("_xy")])
+            paths += [
+                {"xy": z[f"{i}_xy"], "touring": z[f"{i}_touring"], "found": z[f"{i}_found"]}
+                for i in range(n)
+            ]
+    return paths
+
+
+__all__ += ["load_paths", "write_table1"]
+
+
+def write_figures(
+    result: dict[str, Any], out_dir: str | os.PathLike, houses: HouseSet
+) -> list[Path]:
+    """``ppl.png``, ``ppl_per_category.png`` and ``trajectories.png`` (TFL-Reactive and
+    BF-SOP (Transformer), or the first and last methods run, in the first episode's house)."""
+    from bfsop_jax import viz
+
+    out = Path(out_dir)
+    methods = result["methods"]
+    names = list(methods)
+    written = []
+    labels = [methods[m]["label"] for m in names]
+    viz.plot_ppl(
+        labels, [methods[m]["ppl_mean"] for m in names], [methods[m]["ppl_ci95"] for m in names],
+        out / "ppl.png",
+        title=f"PPL per method ({result['preset']}, {methods[names[0]]['episodes']} episodes)",
+    )  # fmt: skip
+    written.append(out / "ppl.png")
+    episodes = result["episodes"]
+    cats = [c for c in TARGET_NAMES if any(r["category"] == c for r in episodes)]
+    table = np.zeros((len(names), len(cats)))
+    for i, m in enumerate(names):
+        for j, c in enumerate(cats):
+            vals = [r["ppl"] for r in episodes if r["method"] == m and r["category"] == c]
+            table[i, j] = np.mean(vals) if vals else np.nan
+    viz.plot_category_ppl(cats, labels, table, out / "ppl_per_category.png",
+                          title="PPL per target category")  # fmt: skip
+    written.append(out / "ppl_per_category.png")
+    pair = [m for m in ("tfl_reactive", "bfsop_st") if m in names]
+    if len(pair) < 2:
+        pair = [names[0], names[-1]] if len(names) > 1 else names[:1]
+    first = [r for r in episodes if r["method"] == pair[0]][0]
+    house_id = first["house_seed"]
+    house = houses[house_id]
+    runs = []
+    for m in pair:
+        rows = [r for r in episodes if r["method"] == m]
+        i = next(k for k, r in enumerate(rows) if (r["house_seed"], r["category"])
+                 == (house_id, first["category"]))  # fmt: skip
+        p = load_paths(out, m)[i]
+        r = rows[i]
+        runs.append((f"{LABELS[m]}: found {r['found']}/{r['total']}, PPL {r['ppl']:.2f}",
+                     p["xy"], p["touring"], p["found"]))  # fmt: skip
+    viz.plot_trajectories_side_by_side(
+        house, runs, out / "trajectories.png",
+        title=f"{first['category']} in house {first['house']} (first episode of the protocol)",
+    )  # fmt: skip
+    written.append(out / "trajectories.png")
+    return written
+
+
+__all__ += ["write_figures"]

@@ -1,0 +1,205 @@
+"""Table I: every navigation strategy on the same held-out episodes, scored by PPL.
+
+    python -m experiments.evaluate --preset demo --house-seeds 1000000:1000010 \\
+        --categories all --methods fbe,bfs_global,tfl_reactive,bfsop_vns,bfsop_st \\
+        [--checkpoint DIR] [--procthor-dir DIR] --out DIR
+
+    python -m experiments.evaluate --scan --preset demo --out DIR   # baselines, validation
+
+Writes ``DIR/results.json`` (per-method summaries and per-episode records),
+``DIR/table1.md``, ``DIR/ppl.png``, ``DIR/ppl_per_category.png`` and
+``DIR/trajectories.png``; an interrupted run resumes from its finished chunks.
+
+``--scan`` runs the baselines' parameter grid (BFS-Global's budget fraction,
+TFL-Reactive's trigger radius and timer) on *validation* houses (seeds from
+``VALIDATION_SEED_START``, never the test houses) and writes ``DIR/scan.md`` ranked by
+PPL; the strategies' defaults are the settings it picks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from bfsop_jax.config import (
+    EVAL_SEED_START,
+    PRESET_NAMES,
+    VALIDATION_SEED_START,
+    get_preset,
+    parse_seed_range,
+)
+from bfsop_jax.eval import navigation as nav
+from bfsop_jax.world.constants import TARGET_NAMES, target_id
+
+SCAN_GRID: dict[str, list[dict[str, Any]]] = {
+    "bfs_global": [{"fraction": f} for f in (0.25, 0.5, 0.75)],
+    "tfl_reactive": [
+        {"radius_m": r, "timer_m": t}
+        for r, t in itertools.product((2.0, 3.0, 4.0), (10.0, 20.0, 40.0))
+    ],
+}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
+    ap.add_argument("--house-seeds", default=None,
+                    help=f"held-out house seeds START:END (default {EVAL_SEED_START}:"
+                    f"{EVAL_SEED_START + 10}; with --procthor-dir: file indices)")  # fmt: skip
+    ap.add_argument("--categories", default="all", help="'all' or comma-separated names")
+    ap.add_argument("--methods", default=",".join(nav.METHODS))
+    ap.add_argument(
+        "--checkpoint", default=None, help="Transformer run dir (default: the shipped demo model)"
+    )
+    ap.add_argument("--procthor-dir", default=None, help="evaluate on ProcTHOR house JSON files")
+    ap.add_argument(
+        "--settings", default=None, help='JSON overrides, e.g. {"bfs_global": {"fraction": 0.4}}'
+    )
+    ap.add_argument("--batch", type=int, default=30, help="episodes per vmapped chunk")
+    ap.add_argument("--scan", action="store_true", help="scan baseline settings (validation)")
+    ap.add_argument("--out", default=None, help="output dir (default runs/evaluate-<preset>)")
+    ap.add_argument("--no-progress", action="store_true")
+    return ap.parse_args(argv)
+
+
+def _fail(message: str) -> None:
+    raise SystemExit(f"error: {message}")
+
+
+def _check(args: argparse.Namespace) -> dict[str, Any]:
+    """Validate everything before anything runs; one-line errors."""
+    checked: dict[str, Any] = {}
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in nav.METHODS]
+    if unknown or not methods:
+        _fail(f"unknown method {unknown[0] if unknown else '(none)'!r}; "
+              f"methods are {', '.join(nav.METHODS)}")  # fmt: skip
+    checked["methods"] = methods
+    if args.categories.strip() == "all":
+        checked["categories"] = list(range(len(TARGET_NAMES)))
+    else:
+        try:
+            checked["categories"] = [target_id(c.strip()) for c in args.categories.split(",")]
+        except ValueError as err:
+            _fail(str(err))
+    default = f"{VALIDATION_SEED_START}:{VALIDATION_SEED_START + 4}" if args.scan else (
+        f"{EVAL_SEED_START}:{EVAL_SEED_START + 10}")  # fmt: skip
+    try:
+        checked["houses"] = parse_seed_range(args.house_seeds or default)
+    except ValueError as err:
+        _fail(str(err))
+    if args.procthor_dir is None and not args.scan and checked["houses"].start < EVAL_SEED_START:
+        _fail(f"house seeds below {EVAL_SEED_START} are training houses; evaluate on held-out "
+              "seeds")  # fmt: skip
+    if args.batch < 1:
+        _fail("--batch must be at least 1")
+    try:
+        checked["settings"] = json.loads(args.settings) if args.settings else {}
+        for name, fields in checked["settings"].items():
+            nav.make_strategy(name, None, {name: fields}) if name != "bfsop_st" else None
+    except (json.JSONDecodeError, TypeError, ValueError) as err:
+        _fail(f"--settings: {err}")
+    checked["policy"] = None
+    if "bfsop_st" in methods:
+        from bfsop_jax.policy import StrategicPolicy
+
+        try:
+            checked["policy"] = StrategicPolicy.load(args.checkpoint)
+        except ValueError as err:
+            _fail(f"--checkpoint: {err}")
+    try:
+        checked["house_set"] = nav.HouseSet(get_preset(args.preset), args.procthor_dir)
+    except ValueError as err:
+        _fail(str(err))
+    if args.procthor_dir is not None and checked["houses"].start >= len(checked["house_set"]):
+        _fail(f"--house-seeds {args.house_seeds}: the folder has {len(checked['house_set'])} files")
+    return checked
+
+
+def run_table1(args: argparse.Namespace, c: dict[str, Any], out: Path) -> dict[str, Any]:
+    houses = c["house_set"]
+    ids = [h for h in c["houses"] if h < len(houses)]
+    episodes = nav.protocol_episodes(houses, ids, c["categories"])
+    if not episodes:
+        _fail("no episode: no house holds any of the categories")
+    protocol = {
+        "house_seeds": [ids[0], ids[-1] + 1],
+        "categories": [TARGET_NAMES[k] for k in c["categories"]],
+        "procthor_dir": args.procthor_dir,
+        "checkpoint": args.checkpoint or "shipped demo model",
+        "machine": f"{platform.machine()}, {platform.system()}",
+    }
+    t0 = time.perf_counter()
+    result = nav.evaluate_navigation(
+        c["methods"], episodes, houses, out, policy=c["policy"], settings=c["settings"],
+        batch=args.batch, progress=not args.no_progress, protocol=protocol,
+    )  # fmt: skip
+    result["wall_s"] = time.perf_counter() - t0
+    nav.write_figures(result, out, houses)
+    header = (
+        f"# Table I: navigation ({args.preset}, houses {ids[0]}:{ids[-1] + 1}, "
+        f"{len(c['categories'])} categories)\n"
+    )
+    text = nav.write_table1(result, out / "table1.md", header)
+    print(text)
+    return result
+
+
+def run_scan(args: argparse.Namespace, c: dict[str, Any], out: Path) -> list[dict[str, Any]]:
+    """Every grid setting of each baseline on the validation houses, ranked by PPL."""
+    houses = c["house_set"]
+    episodes = nav.protocol_episodes(houses, list(c["houses"]), c["categories"])
+    rows = []
+    for method, grid in SCAN_GRID.items():
+        for setting in grid:
+            tag = "_".join(f"{k}{v:g}" for k, v in setting.items())
+            result = nav.evaluate_navigation(
+                [method], episodes, houses, out / f"{method}_{tag}", settings={method: setting},
+                batch=args.batch, progress=not args.no_progress,
+            )  # fmt: skip
+            s = result["methods"][method]
+            rows.append({
+                "method": method, "setting": setting, "ppl_mean": s["ppl_mean"],
+                "ppl_ci95": s["ppl_ci95"], "progress_mean": s["progress_mean"],
+            })  # fmt: skip
+    rows.sort(key=lambda r: (r["method"], -r["ppl_mean"]))
+    lines = [f"# Baseline scan on validation houses {c['houses'].start}:{c['houses'].stop} "
+             f"({args.preset}, {len(episodes)} episodes)", "",
+             "| method | setting | PPL [95% CI] | progress |", "|---|---|---|---|"]  # fmt: skip
+    for r in rows:
+        lo, hi = r["ppl_ci95"]
+        lines.append(
+            f"| {nav.LABELS[r['method']]} | {json.dumps(r['setting'])} | "
+            f"{r['ppl_mean']:.3f} [{lo:.3f}, {hi:.3f}] | {r['progress_mean']:.3f} |"
+        )
+    best = {m: max((r for r in rows if r["method"] == m), key=lambda r: r["ppl_mean"])["setting"]
+            for m in SCAN_GRID}  # fmt: skip
+    lines += ["", f"Best settings: `{json.dumps(best)}`"]
+    (out / "scan.md").write_text("\n".join(lines) + "\n")
+    (out / "scan.json").write_text(json.dumps({"rows": rows, "best": best}, indent=1) + "\n")
+    print("\n".join(lines))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any] | list[dict[str, Any]]:
+    args = parse_args(argv)
+    c = _check(args)
+    out = Path(args.out or f"runs/evaluate-{args.preset}{'-scan' if args.scan else ''}")
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        if args.scan:
+            return run_scan(args, c, out)
+        return run_table1(args, c, out)
+    except ValueError as err:  # e.g. resuming into a directory of another evaluation
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()
