@@ -368,7 +368,9 @@ def _write_json(path: Path, obj: Any) -> None:
     _atomic_write(path, lambda p: p.write_text(json.dumps(obj, indent=1) + "\n"))
 
 
-def _planner_latency_ms(strategy: Any, final: Any, preset: Preset, repeats: int = 8) -> float:
+def _planner_latency_ms(
+    strategy: Any, final: Any, preset: Preset, repeats: int = 8
+) -> float | None:
     """Median ms of one planner call (batch 1) on instances posed from final maps.
 
     The instances are what the agent would plan at the end of its episodes (pending =
@@ -376,7 +378,7 @@ def _planner_latency_ms(strategy: Any, final: Any, preset: Preset, repeats: int 
     """
     planner = getattr(strategy, "planner", None)
     if planner is None:
-        return float("nan")
+        return None
     obs = jax.vmap(observe)(final)
 
     def pose(o):
@@ -497,12 +499,16 @@ def evaluate_navigation(
         timings[method] = {"rollout_wall_s": wall, "vns_rows": stats["rows"],
                            "vns_seconds": stats["seconds"]}  # fmt: skip
         # Planner latency at batch 1, measured apart from the rollout (never mixed in).
-        latency = float("nan")
+        latency_file = out / "episodes" / f"{method}_planner.json"
+        latency = None  # no planner, or not measured
         if first_final is not None and method.startswith("bfsop"):
             latency = _planner_latency_ms(strategy, first_final, preset)
-            timings[method]["planner_ms"] = latency
+            _write_json(latency_file, {"planner_ms": latency})
+        elif latency_file.exists():
+            latency = json.loads(latency_file.read_text())["planner_ms"]
+        timings[method]["planner_ms"] = latency
         for r in method_records:
-            r.setdefault("planner_ms", latency)
+            r["planner_ms"] = latency
         all_records.extend(method_records)
     result = {
         "preset": preset.name,
@@ -539,7 +545,7 @@ def summarise(records: Iterable[dict[str, Any]], methods: Sequence[str]) -> dict
             "switches_mean": float(col("switches").mean()),
             "planner_calls_mean": float(col("planner_calls").mean()),
             "revisit_mean": float(col("revisit").mean()),
-            "planner_ms": float(rows[0].get("planner_ms", float("nan"))),
+            "planner_ms": rows[0].get("planner_ms"),
         }
     return out
 
@@ -573,7 +579,7 @@ def write_table1(result: dict[str, Any], path: str | os.PathLike, header: str = 
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in methods.values():
-        ms = "" if not np.isfinite(s["planner_ms"]) else f"{s['planner_ms']:.1f}"
+        ms = "" if s["planner_ms"] is None else f"{s['planner_ms']:.1f}"
         lines.append(
             f"| {s['label']} | {s['ppl_mean']:.3f} {_ci(s['ppl_ci95'])} | {s['ppl_end_mean']:.3f} "
             f"| {s['progress_mean']:.3f} | {s['path_length_mean']:.1f} "

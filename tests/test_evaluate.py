@@ -1,0 +1,130 @@
+"""`python -m experiments.evaluate`: Table I end to end on a tiny protocol, resume, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bfsop_jax import metrics
+from bfsop_jax.config import get_preset
+from bfsop_jax.eval import navigation as nav
+from experiments import evaluate
+
+ARGS = ["--preset", "smoke", "--house-seeds", "1000000:1000002", "--categories", "Apple,HousePlant",
+        "--methods", "fbe,tfl_reactive,bfsop_st", "--batch", "3", "--no-progress"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def table1(tmp_path_factory):
+    out = tmp_path_factory.mktemp("eval")
+    result = evaluate.main(ARGS + ["--out", str(out)])
+    return out, result
+
+
+def test_protocol_replaces_absent_categories():
+    houses = nav.HouseSet(get_preset("smoke"))
+    ids = range(1000000, 1000004)
+    episodes = nav.protocol_episodes(houses, ids, list(range(9)))
+    for c in range(9):
+        mine = [e for e in episodes if e.category == c]
+        assert len(mine) == len(ids)  # every category keeps its number of episodes
+        assert len({e.house for e in mine}) == len(mine)
+        for e in mine:
+            assert houses.counts(e.house)[c] > 0
+            assert e.house in ids or e.house >= max(ids) + 1
+
+
+def test_table1_outputs(table1):
+    out, result = table1
+    for name in ("results.json", "table1.md", "ppl.png", "ppl_per_category.png",
+                 "trajectories.png", "protocol.json"):  # fmt: skip
+        assert (out / name).is_file(), name
+    saved = json.loads((out / "results.json").read_text())
+    assert set(saved["methods"]) == {"fbe", "tfl_reactive", "bfsop_st"}
+    for m, s in saved["methods"].items():
+        assert s["episodes"] == 4
+        lo, hi = s["ppl_ci95"]
+        assert lo <= s["ppl_mean"] <= hi
+        for key in ("progress_mean", "path_length_mean", "switches_mean", "revisit_mean"):
+            assert key in s, (m, key)
+    keys = {(r["house_seed"], r["category"]) for r in saved["episodes"] if r["method"] == "fbe"}
+    for m in saved["methods"]:
+        assert keys == {(r["house_seed"], r["category"]) for r in saved["episodes"]
+                        if r["method"] == m}  # fmt: skip
+    for r in saved["episodes"]:
+        assert 0 <= r["found"] <= r["total"] and r["total"] >= 1
+        assert r["path_length"] <= r["path_length_end"] <= r["budget"] + 1e-4
+        assert r["ppl"] == pytest.approx(
+            metrics.ppl(r["found"], r["total"], r["path_length"], r["l_opt"])
+        )
+        assert r["ppl"] <= r["progress"] + 1e-9 and r["ppl_end"] <= r["ppl"] + 1e-9
+        assert 0.0 <= r["revisit"] <= 1.0
+        assert (r["l_opt"] > 0) == (r["found"] > 0) or r["path_length"] == 0.0
+        if r["method"] == "fbe":
+            assert r["switches"] == 0 and r["planner_calls"] == 0
+    text = (out / "table1.md").read_text()
+    assert "BF-SOP (Transformer) - " in text and "[95% CI]" in text
+
+
+def test_resume_reuses_finished_chunks(table1):
+    out, result = table1
+    chunks = sorted((out / "episodes").glob("*.json"))
+    stamps = [p.stat().st_mtime_ns for p in chunks]
+    again = evaluate.main(ARGS + ["--out", str(out)])
+    assert [p.stat().st_mtime_ns for p in chunks] == stamps
+    assert again["methods"] == result["methods"]
+
+
+def test_resume_refuses_another_protocol(table1):
+    out, _ = table1
+    other = [a if a != "Apple,HousePlant" else "Apple" for a in ARGS]
+    with pytest.raises(SystemExit):
+        evaluate.main(other + ["--out", str(out)])
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "message"),
+    [
+        ("--methods", "fbe,oracle", "unknown method 'oracle'"),
+        ("--categories", "Banana", "unknown target category"),
+        ("--house-seeds", "1000005:1000005", "empty"),
+        ("--house-seeds", "10:20", "training houses"),
+        ("--checkpoint", "/nonexistent/run", "--checkpoint"),
+        ("--batch", "0", "--batch"),
+    ],
+)
+def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
+    args = [a for a in ARGS]
+    if flag in args:
+        args[args.index(flag) + 1] = value
+    else:
+        args += [flag, value]
+    out = tmp_path / "never"
+    with pytest.raises(SystemExit) as err:
+        evaluate.main(args + ["--out", str(out)])
+    assert message in str(err.value)
+    assert not out.exists()
+
+
+def test_verification_points_give_a_sane_optimal_length():
+    preset = get_preset("smoke")
+    houses = nav.HouseSet(preset)
+    house = houses[1000000]
+    import jax
+    import jax.numpy as jnp
+
+    cats = np.asarray(house.object_category)
+    c = int(np.bincount(cats[(cats >= 0) & (cats < 9)], minlength=9).argmax())
+    idx = np.flatnonzero(cats == c)
+    start = jnp.asarray([8.1, 6.1], jnp.float32)
+    dist = np.asarray(jax.jit(nav._verification_matrix, static_argnums=4)(
+        house, start, jnp.asarray(idx, jnp.int32), jnp.ones(len(idx), bool), preset))  # fmt: skip
+    assert dist.shape == (len(idx) + 1, len(idx) + 1)
+    assert np.all(np.isfinite(dist)) and np.allclose(dist, dist.T)
+    straight = np.linalg.norm(np.asarray(house.object_xy)[idx] - np.asarray(start), axis=1)
+    # within the verification distance of each centre, never shorter than the straight line
+    assert np.all(dist[0, 1:] >= straight - preset.verify_distance_m - 0.2)
+    l_opt = metrics.optimal_visit_length(dist)
+    assert l_opt >= dist[0, 1:].min() - 1e-6
