@@ -3,10 +3,10 @@
 Under ``vmap`` a ``lax.cond`` with a batched predicate turns into a select: both branches
 run for every row, every step. For a strategy that plans rarely (an SOP tour once every
 few dozen macro steps) that means building an instance and calling the planner at every
-step of every episode. :func:`sparse_cond` keeps the branch: batched, it runs the
-expensive branch (for the whole batch, vectorised) only on steps where *some* row needs
-it, and hands that branch the per-row mask so a host-side planner (the VNS callback)
-solves only the rows that asked.
+step of every episode. :func:`sparse_cond` keeps the branch: batched, it gathers the rows
+that need it into small fixed-size sub-batches, runs the expensive branch on those only
+(vectorised; no round at all when nobody asks) and scatters the results back, handing
+the branch a per-row mask so a host-side planner (the VNS callback) skips padding.
 """
 
 from __future__ import annotations
@@ -25,20 +25,24 @@ def sparse_cond(
     true_fn: Callable[..., Any],
     false_fn: Callable[..., Any],
     *operands: Any,
+    capacity: int = 8,
 ) -> Any:
     """``true_fn(pred, *operands)`` where ``pred`` holds, else ``false_fn(*operands)``.
 
-    Unbatched this is ``lax.cond``. Under ``jax.vmap`` the true branch runs (vmapped over
-    the batch, with ``pred`` as its per-row mask) only when ``pred`` holds for at least one
-    row, and rows whose ``pred`` is false take ``false_fn``'s result. Both functions must
-    return the same pytree structure and shapes, and must not close over traced values:
-    pass everything dynamic through ``operands``.
+    Unbatched this is ``lax.cond``. Under ``jax.vmap`` the rows whose ``pred`` holds are
+    gathered into sub-batches of ``capacity`` rows and only those run the true branch
+    (as many rounds as needed; none when no row asks), so the cost follows the number of
+    rows that ask rather than the batch size. The true branch gets a per-row mask (false
+    on the padding of the last sub-batch) so host callbacks can skip padded rows. Both
+    functions must return the same pytree structure and shapes, and must not close over
+    traced values: pass everything dynamic through ``operands``.
 
     Args:
         pred: bool [] (per row under ``vmap``).
-        true_fn: ``(mask, *operands) -> out``; ``mask`` is ``pred`` (true when unbatched).
+        true_fn: ``(mask, *operands) -> out``; ``mask`` is true for a real row.
         false_fn: ``(*operands) -> out``, the cheap result.
         *operands: pytrees of arrays.
+        capacity: rows per sub-batch of the true branch (static).
     """
 
     @jax.custom_batching.custom_vmap
@@ -53,14 +57,26 @@ def sparse_cond(
             pred = jnp.broadcast_to(pred, (axis_size,))
         axes = jax.tree_util.tree_map(lambda b: 0 if b else None, ops_batched)
         cheap = jax.vmap(lambda ops: false_fn(*ops), in_axes=(axes,), axis_size=axis_size)
-        dear = jax.vmap(lambda p, ops: true_fn(p, *ops), in_axes=(0, axes), axis_size=axis_size)
+        size = min(capacity, axis_size)
+        dear = jax.vmap(lambda p, ops: true_fn(p, *ops), in_axes=(0, axes), axis_size=size)
+        count = jnp.sum(pred, dtype=jnp.int32)
+        order = jnp.nonzero(pred, size=axis_size, fill_value=0)[0].astype(jnp.int32)
+        order = jnp.concatenate([order, jnp.zeros(size, jnp.int32)])  # room for the last slice
 
-        def both(ops):
-            hit, miss = dear(pred, ops), cheap(ops)
-            pick = lambda a, b: jnp.where(pred.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)
-            return jax.tree_util.tree_map(pick, hit, miss)
+        def one_round(r, out):
+            rows = jax.lax.dynamic_slice(order, (r * size,), (size,))
+            real = r * size + jnp.arange(size) < count
+            sub = jax.tree_util.tree_map(
+                lambda x, b: x[rows] if b else x, operands, ops_batched
+            )
+            got = dear(real, sub)
+            into = jnp.where(real, rows, axis_size)  # padding rows are dropped
+            return jax.tree_util.tree_map(
+                lambda o, g: o.at[into].set(g, mode="drop"), out, got
+            )
 
-        out = jax.lax.cond(jnp.any(pred), both, cheap, operands)
+        rounds = (count + size - 1) // size
+        out = jax.lax.fori_loop(0, rounds, one_round, cheap(operands))
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return run(jnp.asarray(pred, bool), operands)
