@@ -62,6 +62,11 @@ class DistillPreset:
     # network itself stays budget-independent as in the paper
     model_options: tuple[tuple[str, Any], ...] = (("budget_mask", True),)
     augment: bool = True  # train on random coordinate symmetries of each instance
+    # navigation evaluation at the end (a reduced Table I protocol: these many held-out
+    # houses x these categories, 0 houses = skip); the full one is experiments.evaluate
+    nav_houses: int = 2
+    nav_categories: tuple[str, ...] = ()  # () = all nine
+    nav_methods: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st")
 
 
 PRESETS: dict[str, DistillPreset] = {
@@ -106,6 +111,9 @@ PRESETS: dict[str, DistillPreset] = {
         eval_houses=1,
         eval_tasks=6,
         epochs=2,
+        nav_houses=1,
+        nav_categories=("HousePlant",),
+        nav_methods=("fbe", "bfsop_st"),
     ),
 }
 
@@ -132,6 +140,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--resume", action="store_true", help="continue an interrupted training run")
     ap.add_argument("--ablations", action="store_true", help="also train the ablations")
     ap.add_argument("--eval-tasks", type=int, default=None, help="override: tasks per eval house")
+    ap.add_argument("--no-navigation", action="store_true", help="skip the navigation stage")
     ap.add_argument("--no-progress", action="store_true")
     return ap.parse_args(argv)
 
@@ -248,7 +257,39 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     )
     text = solver_eval.write_tables(result, out / "tables.md", ablation_rows, header)
     print(text)
+    if preset.nav_houses > 0 and not args.no_navigation:
+        result["navigation"] = stage_navigation(args, preset, out, policy, checkpoint)
     return result
+
+
+def stage_navigation(args, preset: DistillPreset, out: Path, policy, checkpoint: Path) -> dict:
+    """Table I on a reduced protocol with the trained planner; appended to ``tables.md``."""
+    from bfsop_jax.config import get_preset
+    from bfsop_jax.eval import navigation as nav
+    from bfsop_jax.world.constants import TARGET_NAMES, target_id
+
+    houses = nav.HouseSet(get_preset(preset.data.preset))
+    ids = range(EVAL_SEED_START, EVAL_SEED_START + preset.nav_houses)
+    cats = [target_id(c) for c in preset.nav_categories] or list(range(len(TARGET_NAMES)))
+    episodes = nav.protocol_episodes(houses, ids, cats)
+    nav_dir = out / "navigation"
+    result = nav.evaluate_navigation(
+        list(preset.nav_methods), episodes, houses, nav_dir, policy=policy,
+        batch=len(episodes), progress=not args.no_progress,
+        protocol={"checkpoint": str(checkpoint), "reduced": True},
+    )  # fmt: skip
+    nav.write_figures(result, nav_dir, houses)
+    header = (
+        f"\n## Table I: navigation, reduced protocol\n\n{len(episodes)} episodes: held-out "
+        f"houses {ids.start}..{ids.stop - 1} x {len(cats)} categories (absent categories move "
+        "to the next house), every method on the same episodes. The full protocol (9 x 10 "
+        "houses) is `python -m experiments.evaluate`.\n"
+    )
+    text = nav.write_table1(result, nav_dir / "table1.md", header)
+    with open(out / "tables.md", "a") as f:
+        f.write(text)
+    print(text)
+    return {"episodes": len(episodes), "methods": result["methods"]}
 
 
 def _figures(policy, instances, result: dict, out: Path) -> None:

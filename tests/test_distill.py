@@ -105,6 +105,10 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path):
     ev = json.loads((run / "solver_eval.json").read_text())
     assert ev["instances"] > 0 and ev["planners"]["transformer+2opt"]["speedup"] > 0
     assert summary["solver_eval"]["instances"] == ev["instances"]
+    # the run ends with the navigation evaluation (reduced Table I protocol)
+    assert (run / "navigation" / "results.json").is_file()
+    assert "Table I: navigation, reduced protocol" in (run / "tables.md").read_text()
+    assert set(summary["solver_eval"]["navigation"]["methods"]) == {"fbe", "bfsop_st"}
     # cached data: a second data stage generates nothing new
     meta = (data / "meta.json").read_text()
     distill.main(["--preset", "smoke", "--stage", "data", "--data-dir", str(data), "--no-progress"])
@@ -113,7 +117,8 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path):
     other = tmp_path / "eval2"
     seeds = f"{EVAL_SEED_START + 5}:{EVAL_SEED_START + 6}"
     distill.main(["--preset", "smoke", "--stage", "eval", "--checkpoint", str(run),
-                  "--eval-seeds", seeds, "--out", str(other), "--no-progress"])  # fmt: skip
+                  "--eval-seeds", seeds, "--out", str(other), "--no-progress",
+                  "--no-navigation"])  # fmt: skip
     ev2 = json.loads((other / "solver_eval.json").read_text())
     assert ev2["house_seeds"] == [EVAL_SEED_START + 5, EVAL_SEED_START + 6]
     assert (other / "tables.md").is_file()
