@@ -38,10 +38,10 @@ from bfsop_jax.eval import navigation as nav
 from bfsop_jax.world.constants import TARGET_NAMES, target_id
 
 SCAN_GRID: dict[str, list[dict[str, Any]]] = {
-    "bfs_global": [{"fraction": f} for f in (0.25, 0.5, 0.75)],
+    "bfs_global": [{"fraction": f} for f in (0.1, 0.25, 0.5, 0.75)],
     "tfl_reactive": [
         {"radius_m": r, "timer_m": t}
-        for r, t in itertools.product((2.0, 3.0, 4.0), (10.0, 20.0, 40.0))
+        for r, t in itertools.product((2.0, 3.0, 4.0, 5.0, 6.0), (10.0, 20.0, 40.0))
     ],
 }
 

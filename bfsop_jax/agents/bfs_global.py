@@ -25,7 +25,7 @@ __all__ = ["BFSGlobal", "BFSGlobalConfig"]
 class BFSGlobalConfig:
     """Tunable numbers of BFS-Global."""
 
-    fraction: float = 0.5  # share of the budget B spent exploring before any tour
+    fraction: float = 0.1  # share of B explored before any tour (validation scan: 0.1)
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
 
 

@@ -28,8 +28,8 @@ __all__ = ["TFLReactive", "TFLReactiveConfig"]
 class TFLReactiveConfig:
     """Tunable numbers of TFL-Reactive."""
 
-    radius_m: float = 3.0  # trigger radius around the agent (metres, straight line)
-    timer_m: float = 20.0  # metres explored with landmarks pending before a forced visit
+    radius_m: float = 4.0  # trigger radius around the agent (metres, straight line)
+    timer_m: float = 40.0  # metres explored with landmarks pending before a forced visit
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
 
 
