@@ -309,9 +309,13 @@ def plot_ppl(
     ax.bar(x, means, color=colours, yerr=err, capsize=4, edgecolor="black", lw=0.6)
     for xi, m in zip(x, means, strict=True):
         ax.text(xi, m / 2, f"{m:.3f}", ha="center", va="center", fontsize=8, color="white")
-    ax.set_xticks(x, labels, rotation=15, ha="right", fontsize=8)
-    ax.set_ylabel("PPL (mean, 95% bootstrap CI)")
     ax.set_ylim(0, max(1e-3, float(np.nanmax(lo_hi[:, 1]))) * 1.15)
+    return _finish_bars(fig, ax, x, labels, "PPL (mean, 95% bootstrap CI)", title, path)
+
+
+def _finish_bars(fig, ax, x, ticks, ylabel, title, path) -> plt.Figure:
+    ax.set_xticks(x, ticks, rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel(ylabel)
     ax.grid(axis="y", alpha=0.3)
     if title:
         ax.set_title(title, fontsize=10)
@@ -329,22 +333,15 @@ def plot_category_ppl(
     """
     table = np.asarray(table, float)
     n, c = table.shape
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * c + 2.0), 3.6), dpi=110)
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * c + 2.0) + 1.8, 3.6), dpi=110)
     width = 0.8 / n
     x = np.arange(c)
     for i in range(n):
         colour = METHOD_COLOURS[i % len(METHOD_COLOURS)]
         offset = (i - (n - 1) / 2) * width
         ax.bar(x + offset, table[i], width, label=labels[i], color=colour, ec="black", lw=0.4)
-    ax.set_xticks(x, categories, rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("PPL (mean over houses)")
-    ax.legend(fontsize=7, ncol=min(n, 3))
-    ax.grid(axis="y", alpha=0.3)
-    if title:
-        ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    _save(fig, path)
-    return fig
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _finish_bars(fig, ax, x, categories, "PPL (mean over houses)", title, path)
 
 
 def plot_trajectories_side_by_side(

@@ -37,10 +37,6 @@ class BFSGlobal(TourStrategy):
     explorer: FBE = FBE()
     record: bool = False
 
-    @property
-    def max_attempts(self) -> int:  # type: ignore[override]
-        return self.config.max_attempts
-
     def wants_tour(self, rule, obs, pending, has_frontier, touring, preset):
         late = obs.path_length >= np.float32(self.config.fraction) * obs.budget
         return late, rule

@@ -147,10 +147,6 @@ class BFSOP(TourStrategy):
     explorer: FBE = FBE()
     record: bool = False
 
-    @property
-    def max_attempts(self) -> int:  # type: ignore[override]
-        return self.config.max_attempts
-
     def plan(self, mask: jax.Array, instance: SOPInstance) -> Solution:
         return self.planner(mask, instance)
 

@@ -41,10 +41,6 @@ class TFLReactive(TourStrategy):
     explorer: FBE = FBE()
     record: bool = False
 
-    @property
-    def max_attempts(self) -> int:  # type: ignore[override]
-        return self.config.max_attempts
-
     def rule_init(self, obs: Observation, preset: Preset) -> tuple[jax.Array, jax.Array]:
         # (metres explored with landmarks pending since the last visit, pending now)
         return jnp.zeros((), jnp.float32), jnp.zeros((), bool)

@@ -94,8 +94,8 @@ def _empty_plan(preset: Preset) -> tuple[SOPInstance, Solution, jax.Array]:
 class TourStrategy:
     """Mixin: ``init`` / ``act`` / ``update`` of an explore-or-tour strategy.
 
-    A subclass (a frozen dataclass with fields ``explorer``, ``max_attempts`` and
-    ``record``) supplies the switch rule and the planner:
+    A subclass (a frozen dataclass with fields ``config`` (holding ``max_attempts``),
+    ``explorer`` and ``record``) supplies the switch rule and the planner:
 
     * ``rule_init(obs, preset) -> rule``
     * ``wants_tour(rule, obs, pending, has_frontier, touring, preset) -> (bool [], rule)``
@@ -103,9 +103,14 @@ class TourStrategy:
     * ``plan(mask, instance) -> Solution``
     """
 
+    config: Any
     explorer: FBE
-    max_attempts: int
     record: bool
+
+    @property
+    def max_attempts(self) -> int:
+        """Blocked macro steps before a tour viewpoint is skipped."""
+        return self.config.max_attempts
 
     # -- hooks (overridden) ------------------------------------------------------------
     def rule_init(self, obs: Observation, preset: Preset) -> Any:
