@@ -43,7 +43,14 @@ SCAN_GRID: dict[str, list[dict[str, Any]]] = {
         {"radius_m": r, "timer_m": t}
         for r, t in itertools.product((2.0, 3.0, 4.0, 5.0, 6.0), (10.0, 20.0, 40.0))
     ],
+    # the switcher shared by both BF-SOP variants, scanned with the Transformer planner
+    "bfsop_st": [{"tour_horizon_m": h} for h in (20.0, 40.0, 1000.0)]
+    + [{"tour_horizon_m": 40.0, "yield_weight": w} for w in (0.0, 0.5)],
 }
+
+
+def _settings_key(method: str) -> str:
+    return "bfsop" if method.startswith("bfsop") else method
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -102,11 +109,13 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
     try:
         checked["settings"] = json.loads(args.settings) if args.settings else {}
         for name, fields in checked["settings"].items():
-            nav.make_strategy(name, None, {name: fields}) if name != "bfsop_st" else None
+            if name not in ("bfs_global", "tfl_reactive", "bfsop"):
+                raise ValueError(f"unknown key {name!r} (bfs_global, tfl_reactive, bfsop)")
+            nav.make_strategy("fbe" if name == "bfsop" else name, None, {name: fields})
     except (json.JSONDecodeError, TypeError, ValueError) as err:
         _fail(f"--settings: {err}")
     checked["policy"] = None
-    if "bfsop_st" in methods:
+    if "bfsop_st" in methods or args.scan:
         from bfsop_jax.policy import StrategicPolicy
 
         try:
@@ -160,7 +169,8 @@ def run_scan(args: argparse.Namespace, c: dict[str, Any], out: Path) -> list[dic
         for setting in grid:
             tag = "_".join(f"{k}{v:g}" for k, v in setting.items())
             result = nav.evaluate_navigation(
-                [method], episodes, houses, out / f"{method}_{tag}", settings={method: setting},
+                [method], episodes, houses, out / f"{method}_{tag}",
+                settings={_settings_key(method): setting}, policy=c["policy"],
                 batch=args.batch, progress=not args.no_progress,
             )  # fmt: skip
             s = result["methods"][method]

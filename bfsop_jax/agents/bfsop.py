@@ -7,13 +7,15 @@ over the landmark centres with straight-line costs times a detour factor; the sa
 every planner) and, whenever the pending set has changed since its last look, switches
 to exploitation when
 
-* the plan's reward per metre beats the recent exploration yield (landmark reward
-  discovered per metre explored, an exponential moving average), or
+* the plan's reward per metre beats ``yield_weight`` times the recent exploration yield
+  (landmark reward discovered per metre explored, an exponential moving average; the
+  default weight 0, chosen on validation houses, makes any rewarding plan worth it), or
 * the remaining budget is close to the plan's cost, or
 * no frontier is reachable, or
 * the landmark cap ``preset.n_loi`` is full.
 
-On switching, the SOP instance is built on the online map and the *planner* (the VNS
+A tour may use at most ``tour_horizon_m`` metres (the SOP budget). On switching, the
+SOP instance is built on the online map and the *planner* (the VNS
 teacher through its host callback, or the Strategic Transformer) computes the tour,
 executed as :mod:`bfsop_jax.agents.tour` describes.
 
@@ -52,8 +54,12 @@ class BFSOPConfig:
     detour: float = 1.3  # geodesic / straight-line ratio assumed by the cheap estimate
     yield_decay: float = 0.9  # per macro step of exploration (about 20 m of memory)
     yield_floor_m: float = 10.0  # the yield's denominator is at least this many metres
+    yield_weight: float = 0.0  # exploit when plan reward/metre > this x exploration yield
     budget_margin: float = 1.2  # exploit when the remaining budget is within this factor
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
+    # a tour may use at most this many metres (the SOP budget; inf = all that remains):
+    # shorter tours return to exploring sooner and are re-planned on a larger map
+    tour_horizon_m: float = 40.0
 
 
 @struct.dataclass
@@ -150,6 +156,9 @@ class BFSOP(TourStrategy):
     def plan(self, mask: jax.Array, instance: SOPInstance) -> Solution:
         return self.planner(mask, instance)
 
+    def tour_budget(self, obs: Observation) -> jax.Array:
+        return jnp.minimum(obs.remaining, np.float32(self.config.tour_horizon_m))
+
     def rule_init(self, obs: Observation, preset: Preset) -> SwitchRule:
         return SwitchRule(
             considered=jnp.zeros(obs.found.shape, bool),
@@ -160,12 +169,14 @@ class BFSOP(TourStrategy):
     def wants_tour(self, rule, obs, pending, has_frontier, touring, preset):
         cfg = self.config
         remaining = obs.budget - obs.path_length
+        horizon = self.tour_budget(obs)
         rew = jnp.where(pending, landmark_rewards(obs), 0.0)
         top_r, top_i = jax.lax.top_k(rew, min(preset.n_loi, rew.shape[0]))
         est_r, est_c = greedy_estimate(
-            obs.object_xy[top_i], top_r, top_r > 0, obs.pose[:2], remaining, cfg.detour
+            obs.object_xy[top_i], top_r, top_r > 0, obs.pose[:2], horizon, cfg.detour
         )
         yield_rate = rule.explore_reward / jnp.maximum(rule.explore_m, cfg.yield_floor_m)
+        yield_rate = np.float32(cfg.yield_weight) * yield_rate
         worth = est_r / jnp.maximum(est_c, 1e-3) > yield_rate
         worth = worth | (remaining <= np.float32(cfg.budget_margin) * est_c)
         worth = worth | (pending.sum() >= preset.n_loi)

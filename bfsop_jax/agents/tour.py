@@ -131,6 +131,10 @@ class TourStrategy:
     def plan(self, mask: jax.Array, instance: SOPInstance) -> Solution:
         raise NotImplementedError
 
+    def tour_budget(self, obs: Observation) -> jax.Array:
+        """Metres a tour may use (the SOP budget): by default all that remains."""
+        return obs.remaining
+
     # -- the strategy ------------------------------------------------------------------
     def init(self, obs: Observation, preset: Preset) -> SwitchMemory:
         t, m = preset.n_loi, obs.found.shape[-1]
@@ -168,7 +172,7 @@ class TourStrategy:
 
         def posed(mask, obs, pending):
             inst, choice = build_instance(
-                obs.belief, obs.pose[:2], obs.remaining, pending, obs.object_category,
+                obs.belief, obs.pose[:2], self.tour_budget(obs), pending, obs.object_category,
                 obs.object_xy, obs.object_half_extent, obs.prior, obs.category, preset,
             )  # fmt: skip
             return inst, self.plan(mask, inst), choice.index

@@ -50,6 +50,7 @@ from bfsop_jax.agents import (
     FBE,
     BFSGlobal,
     BFSGlobalConfig,
+    BFSOPConfig,
     TFLReactive,
     TFLReactiveConfig,
     TransformerPlanner,
@@ -75,6 +76,7 @@ __all__ = [
     "HouseSet",
     "evaluate_navigation",
     "make_strategy",
+    "describe_strategy",
     "protocol_episodes",
     "summarise",
 ]
@@ -176,8 +178,13 @@ def protocol_episodes(
 def make_strategy(
     name: str, policy: Any = None, settings: dict[str, dict[str, Any]] | None = None
 ) -> Any:
-    """The strategy behind a method name; ``settings`` override baseline config fields."""
+    """The strategy behind a method name.
+
+    ``settings`` override config fields: ``{"bfs_global": {...}, "tfl_reactive": {...},
+    "bfsop": {...}}`` (``"bfsop"``: the switcher of both BF-SOP variants).
+    """
     settings = settings or {}
+    switcher = BFSOPConfig(**settings.get("bfsop", {}))
     if name == "fbe":
         return FBE()
     if name == "bfs_global":
@@ -185,12 +192,23 @@ def make_strategy(
     if name == "tfl_reactive":
         return TFLReactive(TFLReactiveConfig(**settings.get(name, {})))
     if name == "bfsop_vns":
-        return BFSOP(VNSPlanner(seed=0))
+        return BFSOP(VNSPlanner(seed=0), switcher)
     if name == "bfsop_st":
         if policy is None:
             raise ValueError("bfsop_st needs a StrategicPolicy")
-        return BFSOP(TransformerPlanner(policy))
+        return BFSOP(TransformerPlanner(policy), switcher)
     raise ValueError(f"unknown method {name!r}; methods are {', '.join(METHODS)}")
+
+
+def describe_strategy(strategy: Any) -> str:
+    """A stable text of a strategy's class, configuration and planner (not its weights)."""
+    parts = [type(strategy).__name__, repr(getattr(strategy, "config", None))]
+    planner = getattr(strategy, "planner", None)
+    if planner is not None:
+        fields = {f.name: getattr(planner, f.name) for f in dataclasses.fields(planner)}
+        fields.pop("policy", None)
+        parts.append(f"{type(planner).__name__}{fields}")
+    return " ".join(parts)
 
 
 # -- episode geometry on the true map ------------------------------------------------------
@@ -449,13 +467,15 @@ def evaluate_navigation(
         "budget_m": preset.budget_m,
         "episodes": [[e.house, TARGET_NAMES[e.category]] for e in episodes],
         "settings": settings or {},
+        "strategies": {m: describe_strategy(make_strategy(m, policy, settings)) for m in methods},
         "batch": batch,
         **(protocol or {}),
     }
     saved = out / "protocol.json"
     if saved.exists():
         before = json.loads(saved.read_text())
-        same = {k: before.get(k) for k in ("preset", "budget_m", "episodes", "settings")}
+        keys = ("preset", "budget_m", "episodes", "settings")
+        same = {k: before.get(k) for k in keys}
         if same != {k: described[k] for k in same}:
             raise ValueError(
                 f"{out} holds a different evaluation (preset, budget, episodes or settings "
@@ -463,6 +483,13 @@ def evaluate_navigation(
             )
         described["batch"] = before.get("batch", batch)
         batch = described["batch"]
+        # chunks of a method whose strategy changed since (code defaults) are recomputed
+        old = before.get("strategies", {})
+        for m in methods:
+            if m in old and old[m] != described["strategies"][m]:
+                for f in (out / "episodes").glob(f"{m}_*"):
+                    f.unlink()
+        described["strategies"] = {**old, **described["strategies"]}
     _write_json(saved, described)
 
     chunks = [list(episodes[i : i + batch]) for i in range(0, len(episodes), batch)]
