@@ -403,7 +403,8 @@ def _planner_latency_ms(
     """Median ms of one planner call (batch 1) on instances posed from final maps.
 
     The instances are what the agent would plan at the end of its episodes (pending =
-    every detected landmark of interest), so their size matches the evaluation's.
+    every detected landmark of interest, the strategy's tour budget from a full budget),
+    so their size matches the evaluation's.
     """
     planner = getattr(strategy, "planner", None)
     if planner is None:
@@ -412,8 +413,9 @@ def _planner_latency_ms(
 
     def pose(o):
         pending = pending_landmarks(o, jnp.zeros_like(o.found))
+        budget = strategy.tour_budget(o.replace(path_length=jnp.zeros_like(o.path_length)))
         inst, _ = build_instance(
-            o.belief, o.pose[:2], o.budget, pending, o.object_category, o.object_xy,
+            o.belief, o.pose[:2], budget, pending, o.object_category, o.object_xy,
             o.object_half_extent, o.prior, o.category, preset,
         )  # fmt: skip
         return inst
