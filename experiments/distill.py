@@ -113,7 +113,7 @@ PRESETS: dict[str, DistillPreset] = {
         epochs=2,
         nav_houses=1,
         nav_categories=("HousePlant",),
-        nav_methods=("fbe", "bfsop_st"),
+        nav_methods=("fbe",),
     ),
 }
 

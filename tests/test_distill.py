@@ -108,7 +108,7 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path):
     # the run ends with the navigation evaluation (reduced Table I protocol)
     assert (run / "navigation" / "results.json").is_file()
     assert "Table I: navigation, reduced protocol" in (run / "tables.md").read_text()
-    assert set(summary["solver_eval"]["navigation"]["methods"]) == {"fbe", "bfsop_st"}
+    assert set(summary["solver_eval"]["navigation"]["methods"]) == {"fbe"}
     # cached data: a second data stage generates nothing new
     meta = (data / "meta.json").read_text()
     distill.main(["--preset", "smoke", "--stage", "data", "--data-dir", str(data), "--no-progress"])
