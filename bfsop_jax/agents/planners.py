@@ -31,7 +31,6 @@ def nearest_neighbour_plan(instance: SOPInstance, max_sets: int = 0) -> Solution
     The reactive baselines plan this way; their tours are cut by the budget gate during
     execution. One instance (``set_id`` [N]); vmappable.
     """
-    n = instance.set_id.shape[-1]
     k = instance.set_reward.shape[-1]
     length = plan_length(k)
     steps = (k - 1) if max_sets <= 0 else min(max_sets, k - 1)
@@ -55,7 +54,6 @@ def nearest_neighbour_plan(instance: SOPInstance, max_sets: int = 0) -> Solution
     nodes = nodes.at[1 : 1 + steps].set(picked)
     reward = jnp.sum(jnp.where(go, instance.set_reward[sets[jnp.maximum(picked, 0)]], 0.0))
     cost = jnp.sum(jnp.where(go, legs, 0.0))
-    del n
     return Solution(nodes=nodes, reward=reward.astype(jnp.float32), cost=cost.astype(jnp.float32))
 
 

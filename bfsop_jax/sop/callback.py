@@ -190,7 +190,6 @@ def _host_solve_masked(
 ) -> Solution:
     mask = np.asarray(mask, bool)
     lead = mask.shape
-    n_nodes = instance.set_id.shape[-1]
     n_sets = instance.set_reward.shape[-1]
     flat = jax.tree_util.tree_map(
         lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[len(lead) :]), instance
@@ -210,7 +209,6 @@ def _host_solve_masked(
         _STATS["calls"] += 1
         _STATS["rows"] += int(rows.size)
         nodes[rows], reward[rows], cost[rows] = sol.nodes, sol.reward, sol.cost
-    assert n_nodes == flat.set_id.shape[-1]
     return Solution(
         nodes=nodes.reshape(lead + (length,)),
         reward=reward.reshape(lead),
