@@ -39,7 +39,7 @@ from bfsop_jax.sop.two_opt import two_opt as sop_two_opt
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.training import checkpoint as ckpt
 from bfsop_jax.training.bc import init_states
-from bfsop_jax.training.config import TrainConfig
+from bfsop_jax.training.config import Replica, TrainConfig
 
 __all__ = ["DEMO_POLICY_DIR", "TWO_OPT_ITERS", "StrategicPolicy"]
 
@@ -288,11 +288,8 @@ def _latest_params(
     if not replicas:
         raise ValueError(f"{run_dir / ckpt.CONFIG_FILE} lists no replicas")
     train_config = TrainConfig.from_dict(config["run"]["train"])
-    states = jax.eval_shape(
-        lambda: init_states(
-            model_config, train_config, [r["seed"] for r in replicas], [r["lr"] for r in replicas]
-        )[1]
-    )
+    members = [Replica.from_dict(r, train_config) for r in replicas]
+    states = jax.eval_shape(lambda: init_states(model_config, train_config, replicas=members)[1])
     with ckpt.CheckpointStore(run_dir, read_only=True) as store:
         if store.latest_epoch() is None:
             raise ValueError(f"no checkpoint in {run_dir} (neither model/ nor an epoch checkpoint)")

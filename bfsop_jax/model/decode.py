@@ -46,6 +46,7 @@ class TeacherForcing:
     log_probs: Any  # [B, S, N+1] float32: log-probabilities over nodes and END (index N)
     target: Any  # [B, S] int32: the teacher's next node, N for END
     valid: Any  # [B, S] bool: the step exists (the prefix ends at a real node)
+    allowed: Any = None  # [B, S, N+1] bool: the entries the decoder could choose at a step
 
 
 @struct.dataclass
@@ -195,7 +196,9 @@ def teacher_forced_logits(
         )
 
     scores = model.decoder(cache, safe_last, allowed, budget_left)
-    return TeacherForcing(log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=valid)
+    return TeacherForcing(
+        log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=valid, allowed=allowed
+    )
 
 
 def decode(

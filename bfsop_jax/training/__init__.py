@@ -13,6 +13,7 @@ from bfsop_jax.training.bc import (
 from bfsop_jax.training.checkpoint import CheckpointStore, export_policy
 from bfsop_jax.training.config import (
     ModelConfig,
+    Replica,
     RunConfig,
     TrainConfig,
     get_model_config,
@@ -22,6 +23,7 @@ from bfsop_jax.training.config import (
 __all__ = [
     "CheckpointStore",
     "ModelConfig",
+    "Replica",
     "RunConfig",
     "TrainConfig",
     "TrainResult",

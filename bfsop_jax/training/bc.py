@@ -20,6 +20,7 @@ Dataset format (a dict of NumPy arrays, leading axis D; see :func:`instances_fro
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import itertools
@@ -37,17 +38,21 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import nnx, struct
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from bfsop_jax.model.decode import teacher_forced_logits
 from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
+from bfsop_jax.parallel import DATA_AXIS, mesh_size, place, to_host
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.training import checkpoint as ckpt
-from bfsop_jax.training.config import RunConfig, TrainConfig
+from bfsop_jax.training.config import Replica, RunConfig, TrainConfig
 from bfsop_jax.training.metrics import MetricsLog, imitation_stats
 
 __all__ = [
     "DATASET_KEYS",
+    "Hyper",
+    "TRACE_COUNTS",
     "TrainResult",
     "TrainState",
     "TrainingTerminated",
@@ -58,6 +63,7 @@ __all__ = [
     "instances_from_dataset",
     "make_evaluate",
     "make_optimizer",
+    "learning_rate",
     "lr_factor",
     "make_train_epoch",
     "train",
@@ -192,13 +198,39 @@ def dataset_info(ds: Mapping[str, Any]) -> dict[str, int]:
 
 # -- the functional training program --------------------------------------------------------
 @struct.dataclass
+class Hyper:
+    """One replica's recipe numbers as traced scalars (stacked: a leading replica axis)."""
+
+    lr: Any  # [] float32: base learning rate
+    grad_clip: Any  # [] float32: global-norm clipping threshold
+    lr_decay: Any  # [] float32: staircase decay factor ...
+    decay_every: Any  # [] float32: ... every this many epochs
+    warmup_epochs: Any  # [] float32: linear warm-up length (0: none)
+    label_smoothing: Any  # [] float32: uniform-target weight over the allowed entries
+    augment: Any  # [] bool: show instances under random coordinate symmetries
+
+    @classmethod
+    def of(cls, replica: Replica) -> Hyper:
+        f32 = jnp.float32
+        return cls(
+            lr=f32(replica.lr),
+            grad_clip=f32(replica.grad_clip),
+            lr_decay=f32(replica.lr_decay),
+            decay_every=f32(replica.decay_every),
+            warmup_epochs=f32(replica.warmup_epochs),
+            label_smoothing=f32(replica.label_smoothing),
+            augment=jnp.bool_(replica.augment),
+        )
+
+
+@struct.dataclass
 class TrainState:
     """One replica's training state (a leading replica axis when stacked)."""
 
     params: Any  # nnx.State of the model's nnx.Param leaves
     opt_state: Any  # clip + Adam state (moments, counts)
     step: Any  # [] int32: optimiser steps taken
-    lr: Any  # [] float32: base learning rate of this replica
+    hyper: Hyper  # this replica's recipe numbers
 
 
 def make_optimizer(grad_clip: float | jax.Array) -> optax.GradientTransformation:
@@ -211,24 +243,41 @@ def lr_factor(step: Any, decay_steps: Any, lr_decay: Any) -> jax.Array:
     return lr_decay ** jnp.floor(step / decay_steps)
 
 
+def learning_rate(hyper: Hyper, step: Any, steps_per_epoch: int) -> jax.Array:
+    """Learning rate of optimiser step ``step`` (0-based): warm-up, then staircase decay."""
+    warm = jnp.minimum(1.0, (step + 1) / jnp.maximum(hyper.warmup_epochs * steps_per_epoch, 1.0))
+    warm = jnp.where(hyper.warmup_epochs > 0, warm, 1.0)
+    decay = lr_factor(step, hyper.decay_every * steps_per_epoch, hyper.lr_decay)
+    return hyper.lr * warm * decay
+
+
 def init_states(
     model_config: ModelConfig,
     train_config: TrainConfig,
-    seeds: Sequence[int],
-    lrs: Sequence[float],
+    seeds: Sequence[int] = (),
+    lrs: Sequence[float] = (),
+    *,
+    replicas: Sequence[Replica] | None = None,
 ) -> tuple[nnx.GraphDef, TrainState]:
-    """Graph definition and stacked initial states of the replicas ``zip(seeds, lrs)``."""
-    tx = make_optimizer(train_config.grad_clip)
+    """Graph definition and stacked initial states of the replicas.
+
+    The replicas are ``replicas`` when given, otherwise ``zip(seeds, lrs)`` with the
+    recipe's other numbers.
+    """
+    if replicas is None:
+        replicas = [Replica.of(train_config, s, lr) for s, lr in zip(seeds, lrs, strict=True)]
+    if not replicas:
+        raise ValueError("init_states needs at least one replica")
     graphdef, states = None, []
-    for seed, lr in zip(seeds, lrs, strict=True):
-        model = StrategicTransformer(model_config, rngs=nnx.Rngs(params=_init_key(seed)))
+    for rep in replicas:
+        model = StrategicTransformer(model_config, rngs=nnx.Rngs(params=_init_key(rep.seed)))
         graphdef, params = nnx.split(model, nnx.Param)
         states.append(
             TrainState(
                 params=params,
-                opt_state=tx.init(params),
+                opt_state=make_optimizer(rep.grad_clip).init(params),
                 step=jnp.int32(0),
-                lr=jnp.float32(lr),
+                hyper=Hyper.of(rep),
             )
         )
     stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *states)
@@ -238,7 +287,7 @@ def init_states(
 def _committed(tree: Any) -> Any:
     """Place arrays on the default device explicitly: jit caches committed and uncommitted
     inputs separately, and the epoch's outputs are committed."""
-    return jax.device_put(tree, jax.devices()[0])
+    return place(tree, None)
 
 
 def _init_key(seed: int) -> jax.Array:
@@ -250,15 +299,15 @@ def _epoch_key(seed: int, epoch: int) -> jax.Array:
     return jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), 1), epoch)
 
 
-def _batch_stats(
+def _teacher_forcing(
     graphdef: nnx.GraphDef,
     params: Any,
     batch: Mapping[str, jax.Array],
-    weight=None,
     key: jax.Array | None = None,
+    augment: Any = True,
 ):
-    """Summed imitation stats of a minibatch; with ``key``, every instance is seen under
-    a random one of the 8 coordinate symmetries (training augmentation)."""
+    """Teacher-forced decoder outputs on a minibatch; with ``key`` (and ``augment`` true),
+    every instance is seen under a random one of the 8 coordinate symmetries."""
     model = nnx.merge(graphdef, params)
     inst = _instances(batch)
     features = None
@@ -266,60 +315,114 @@ def _batch_stats(
         features = node_features(inst)
         variants = symmetric_features(features).nodes  # [8, B, N, F]
         pick = jax.random.randint(key, (variants.shape[1],), 0, NUM_SYMMETRIES)
+        pick = jnp.where(augment, pick, 0)  # symmetry 0 is the identity
         features = features.replace(nodes=variants[pick, jnp.arange(variants.shape[1])])
-    tf = teacher_forced_logits(model, inst, batch["teacher_nodes"], features)
-    return imitation_stats(tf, weight)
+    return teacher_forced_logits(model, inst, batch["teacher_nodes"], features)
+
+
+def _batch_stats(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array], weight=None):
+    """Summed imitation stats [3] of a minibatch (see ``imitation_stats``)."""
+    return imitation_stats(_teacher_forcing(graphdef, params, batch), weight)
+
+
+def _smoothing_nll(tf) -> jax.Array:
+    """Summed cross-entropy of the uniform distribution over each valid step's allowed
+    entries (the label-smoothing term)."""
+    allowed = tf.allowed
+    count = jnp.maximum(jnp.sum(allowed, axis=-1), 1)
+    uniform = -jnp.sum(jnp.where(allowed, tf.log_probs, 0.0), axis=-1) / count
+    return jnp.sum(jnp.where(tf.valid, uniform, 0.0))
+
+
+TRACE_COUNTS: collections.Counter[str] = collections.Counter()
+"""How often each training program was traced (a test that a sweep group compiles once)."""
 
 
 def make_train_epoch(
-    graphdef: nnx.GraphDef, config: TrainConfig, num_instances: int
+    graphdef: nnx.GraphDef,
+    config: TrainConfig,
+    num_instances: int,
+    *,
+    augment: bool | None = None,
+    smoothing: bool | None = None,
+    mesh: Mesh | None = None,
+    shard: str = "replicas",
 ) -> Callable[[TrainState, dict[str, jax.Array], jax.Array], tuple[TrainState, jax.Array]]:
     """Jitted ``train_epoch(states, data, keys) -> (states, stats)`` over stacked replicas.
 
     ``states``: :class:`TrainState` with a leading replica axis R; ``data``: dataset dict of
     device arrays (shared by the replicas); ``keys``: [R] shuffle keys. ``stats`` [R, 3]:
     summed NLL, correct arg-max steps, valid steps over the epoch. The program is compiled
-    once per (model graph, batch size, D, replica count): the recipe's numbers (clip, decay)
-    are traced values, so runs that differ only in them, or in epochs, share it.
+    once per (model graph, batch size, D, replica count, the two flags below, placement):
+    every recipe number lives in ``states.hyper``, so replicas that differ only in them, or
+    runs that differ in epochs, share it.
+
+    ``augment`` / ``smoothing``: compile the symmetry augmentation / the label-smoothing
+    term in (default: the recipe's setting); each replica's ``hyper`` then says whether it
+    augments and how much it smooths. ``mesh`` with ``shard="batch"``: every minibatch is
+    split over the mesh's ``data`` axis (``shard="replicas"`` needs nothing inside the
+    program: the placement of ``states`` decides).
     """
     batch_size = min(config.batch_size, num_instances)
-    steps = num_instances // batch_size
-    recipe = jnp.asarray(
-        [config.grad_clip, config.lr_decay, steps * config.decay_period], jnp.float32
-    )
     return functools.partial(
         _train_epoch,
-        recipe=recipe,
         graphdef=graphdef,
         batch_size=batch_size,
         num_instances=num_instances,
-        augment=config.augment,
+        augment=config.augment if augment is None else bool(augment),
+        smoothing=config.label_smoothing > 0 if smoothing is None else bool(smoothing),
+        batch_mesh=mesh if shard == "batch" else None,
     )
 
 
-@functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances", "augment"))
+@functools.partial(
+    jax.jit,
+    static_argnames=(
+        "graphdef", "batch_size", "num_instances", "augment", "smoothing", "batch_mesh"
+    ),
+)  # fmt: skip
 def _train_epoch(
-    states, data, keys, recipe, *, graphdef, batch_size: int, num_instances: int, augment: bool
+    states,
+    data,
+    keys,
+    *,
+    graphdef,
+    batch_size: int,
+    num_instances: int,
+    augment: bool,
+    smoothing: bool,
+    batch_mesh: Mesh | None,
 ):
+    TRACE_COUNTS["train_epoch"] += 1
     num_batches = num_instances // batch_size
-    grad_clip, lr_decay, decay_steps = recipe[0], recipe[1], recipe[2]
-    tx = make_optimizer(grad_clip)
 
-    def loss(params, batch, key):
-        stats = _batch_stats(graphdef, params, batch, key=key if augment else None)
-        return stats[0] / jnp.maximum(stats[2], 1.0), stats
+    def loss(params, batch, key, hyper: Hyper):
+        tf = _teacher_forcing(
+            graphdef, params, batch, key=key if augment else None, augment=hyper.augment
+        )
+        stats = imitation_stats(tf)
+        total = stats[0]
+        if smoothing:
+            eps = hyper.label_smoothing
+            total = (1.0 - eps) * total + eps * _smoothing_nll(tf)
+        return total / jnp.maximum(stats[2], 1.0), stats
 
     def epoch(state: TrainState, key: jax.Array):
         shuffle, sym = jax.random.split(key)
         order = jax.random.permutation(shuffle, num_instances)[: num_batches * batch_size]
         sym_keys = jax.random.split(sym, num_batches)
+        tx = make_optimizer(state.hyper.grad_clip)
 
         def minibatch(state: TrainState, xs):
             idx, sym_key = xs
             batch = jax.tree_util.tree_map(lambda x: x[idx], data)
-            grads, stats = jax.grad(loss, has_aux=True)(state.params, batch, sym_key)
+            if batch_mesh is not None:
+                batch = jax.lax.with_sharding_constraint(
+                    batch, NamedSharding(batch_mesh, PartitionSpec(DATA_AXIS))
+                )
+            grads, stats = jax.grad(loss, has_aux=True)(state.params, batch, sym_key, state.hyper)
             updates, opt_state = tx.update(grads, state.opt_state, state.params)
-            lr = state.lr * lr_factor(state.step, decay_steps, lr_decay)
+            lr = learning_rate(state.hyper, state.step, num_batches)
             updates = jax.tree_util.tree_map(lambda u: -lr * u, updates)
             params = optax.apply_updates(state.params, updates)
             return state.replace(params=params, opt_state=opt_state, step=state.step + 1), stats
@@ -376,7 +479,7 @@ def evaluate_imitation(
 
 
 def _device_data(ds: Mapping[str, Any]) -> dict[str, jax.Array]:
-    return _committed({k: jnp.asarray(v) for k, v in _check_dataset(ds).items()})
+    return place(_check_dataset(ds), None)
 
 
 # -- the run --------------------------------------------------------------------------------
@@ -390,17 +493,36 @@ class TrainResult:
 
     model: StrategicTransformer  # the chosen replica (the current best if incomplete)
     best_replica: int  # index into ``replicas``
-    replicas: list[dict[str, Any]]  # [{"seed": s, "lr": lr}] in replica order
+    replicas: list[dict[str, Any]]  # Replica.to_dict() of every replica, in order
     states: TrainState  # final states of every replica (leading replica axis)
     epochs_done: int
-    complete: bool  # all configured epochs done (the model was saved to run_dir/model)
+    complete: bool  # all configured epochs done (the models were saved)
     history: list[dict[str, Any]]  # the metrics rows
     run_dir: Path
+    replica_dirs: list[Path] = dataclasses.field(default_factory=list)  # one per replica
+    losses: list[float] = dataclasses.field(default_factory=list)  # last selection loss each
 
 
 def _stats_row(stats: np.ndarray) -> tuple[float, float]:
     steps = max(float(stats[2]), 1.0)
     return float(stats[0]) / steps, float(stats[1]) / steps
+
+
+def _replica_list(
+    recipe: TrainConfig,
+    seeds: Sequence[int],
+    lrs: Sequence[float],
+    replicas: Sequence[Replica] | None,
+) -> list[Replica]:
+    if replicas is not None:
+        if not replicas or not all(isinstance(r, Replica) for r in replicas):
+            raise ValueError("replicas must be a non-empty list of Replica")
+        return list(replicas)
+    if not seeds or not lrs:
+        raise ValueError("train needs at least one seed and one learning rate")
+    if any(not (isinstance(lr, int | float) and lr > 0) for lr in lrs):
+        raise ValueError(f"learning rates must be positive numbers, got {list(lrs)}")
+    return [Replica.of(recipe, s, lr) for s, lr in itertools.product(seeds, lrs)]
 
 
 def train(
@@ -415,46 +537,67 @@ def train(
     max_epochs_this_call: int | None = None,
     on_epoch: Callable[[list[dict[str, Any]]], None] | None = None,
     dataset_meta: dict[str, Any] | None = None,
+    *,
+    replicas: Sequence[Replica] | None = None,
+    replica_dirs: Sequence[str | os.PathLike] | None = None,
+    mesh: Mesh | None = None,
 ) -> TrainResult:
-    """Train every (seed, lr) pair as one vmapped program; checkpoint after every epoch.
+    """Train every replica as one vmapped program; checkpoint after every epoch.
 
     Args:
         config: model, recipe and preset name.
         train_ds, val_ds: dataset dicts (``val_ds`` may be None: the training loss then
             picks the best replica).
         out_dir: run directory (see :mod:`bfsop_jax.training.checkpoint` for its layout).
-        seeds, lrs: the replicas are their Cartesian product (seed-major).
+        seeds, lrs: without ``replicas``, the replicas are their Cartesian product
+            (seed-major) with the recipe's other numbers.
         resume: continue from the last checkpoint in ``out_dir`` (same config required).
             Without it, a directory that already holds checkpoints is refused.
         progress: show a tqdm bar over epochs.
         max_epochs_this_call: stop (checkpointed) after this many epochs of this call.
         on_epoch: called with the metric rows after each epoch, before its checkpoint.
         dataset_meta: extra JSON-able description of the data, stored in ``config.json``.
+        replicas: the members of the program, each with its own seed and recipe numbers.
+        replica_dirs: where each replica's final model goes (``config.json`` + ``model/``,
+            loadable by ``StrategicPolicy.load``); default ``out_dir/replicas/<i>`` when
+            there are several (one replica is ``out_dir/model`` itself).
+        mesh: a one-axis (``"data"``) device mesh to spread the program over: the
+            replicas when their count divides by the mesh size, otherwise every
+            minibatch (the batch size must then divide by it). None: the default device.
 
     Returns:
         A :class:`TrainResult`. On KeyboardInterrupt or SIGTERM the last completed epoch is
-        checkpointed, then the exception propagates (resume with ``resume=True``).
+        checkpointed, then the exception propagates (resume with ``resume=True``). The
+        best replica (lowest validation loss) also goes to ``out_dir/model``.
     """
     if not isinstance(config, RunConfig):
         raise ValueError(f"config must be a RunConfig, got {type(config).__name__}")
-    if not seeds or not lrs:
-        raise ValueError("train needs at least one seed and one learning rate")
-    if any(not (isinstance(lr, int | float) and lr > 0) for lr in lrs):
-        raise ValueError(f"learning rates must be positive numbers, got {list(lrs)}")
+    tcfg = config.train
+    members = _replica_list(tcfg, seeds, lrs, replicas)
     if max_epochs_this_call is not None and max_epochs_this_call < 1:
         raise ValueError(f"max_epochs_this_call must be >= 1, got {max_epochs_this_call}")
-    train_data = _device_data(train_ds)
-    val_data = _device_data(val_ds) if val_ds is not None else None
+    run_dir = Path(out_dir)
+    if replica_dirs is not None:
+        dirs = [Path(d) for d in replica_dirs]
+    elif len(members) > 1:
+        dirs = [run_dir / "replicas" / f"{i:03d}" for i in range(len(members))]
+    else:  # one replica: run_dir/model is that replica
+        dirs = []
+    if dirs and len(dirs) != len(members):
+        raise ValueError(f"{len(members)} replicas but {len(dirs)} replica directories")
     info = {"train": dataset_info(train_ds)}
     if val_ds is not None:
         info["val"] = dataset_info(val_ds)
         for key in ("num_nodes", "num_sets"):
             if info["val"][key] != info["train"][key]:
                 raise ValueError(f"train and val datasets differ in {key}")
-    replicas = [{"seed": int(s), "lr": float(lr)} for s, lr in itertools.product(seeds, lrs)]
+    num_train = info["train"]["instances"]
+    batch_size = min(tcfg.batch_size, num_train)
+    shard = _shard_mode(mesh, len(members), batch_size)
+    replica_dicts = [r.to_dict() for r in members]
     run_config = {
         "run": config.to_dict(),
-        "replicas": replicas,
+        "replicas": replica_dicts,
         "dataset": {
             "num_nodes": info["train"]["num_nodes"],
             "num_sets": info["train"]["num_sets"],
@@ -462,29 +605,30 @@ def train(
             "meta": dataset_meta or {},
         },
     }
-    run_dir = Path(out_dir)
     _prepare_run_dir(run_dir, run_config, resume)
 
-    tcfg = config.train
-    graphdef, states = init_states(
-        config.model, tcfg, [r["seed"] for r in replicas], [r["lr"] for r in replicas]
-    )
-    num_train = info["train"]["instances"]
-    train_epoch = make_train_epoch(graphdef, tcfg, num_train)
+    graphdef, states = init_states(config.model, tcfg, replicas=members)
+    lead = shard == "replicas"
+    states = place(to_host(states), mesh, leading=lead)
+    train_data = place(_check_dataset(train_ds), mesh, leading=False)
+    val_data = place(_check_dataset(val_ds), mesh, leading=False) if val_ds is not None else None
+    train_epoch = make_train_epoch(
+        graphdef, tcfg, num_train, augment=any(r.augment for r in members),
+        smoothing=any(r.label_smoothing > 0 for r in members), mesh=mesh, shard=shard,
+    )  # fmt: skip
     evaluate = (
         make_evaluate(graphdef, tcfg.batch_size, info["val"]["instances"]) if val_data else None
     )
-    steps = num_train // min(tcfg.batch_size, num_train)  # optimiser steps per epoch
-    decay_steps, decay = steps * tcfg.decay_period, tcfg.lr_decay
+    steps = num_train // batch_size  # optimiser steps per epoch
 
     store = ckpt.CheckpointStore(run_dir, max_to_keep=tcfg.keep_checkpoints)
     start = 0
     if resume and store.latest_epoch() is not None:
         states, meta = store.restore(states)
-        states = _committed(states)
+        states = place(to_host(states), mesh, leading=lead)
         start = int(meta["epoch"])
     log = MetricsLog(run_dir, keep_until_epoch=start)
-    last_losses = _last_losses(log.rows, len(replicas), start)
+    last_losses = _last_losses(log.rows, len(members), start)
     stop = (
         tcfg.epochs
         if max_epochs_this_call is None
@@ -497,25 +641,28 @@ def train(
     try:
         for epoch in range(start + 1, stop + 1):
             t0 = time.perf_counter()
-            keys = jnp.stack([_epoch_key(r["seed"], epoch) for r in replicas])
+            keys = place(
+                jnp.stack([_epoch_key(r.seed, epoch) for r in members]), mesh, leading=lead
+            )
             new_states, train_stats = train_epoch(states, train_data, keys)
-            train_stats = np.asarray(train_stats)
-            val_stats = np.asarray(evaluate(new_states.params, val_data)) if evaluate else None
+            train_stats = to_host(train_stats)
+            val_stats = to_host(evaluate(new_states.params, val_data)) if evaluate else None
             seconds = time.perf_counter() - t0
             states, done = new_states, epoch
             rows = []
-            for i, rep in enumerate(replicas):
+            for i, rep in enumerate(members):
                 train_loss, train_acc = _stats_row(train_stats[i])
                 val_loss, val_acc = (
                     _stats_row(val_stats[i]) if val_stats is not None else (None, None)
                 )
+                lr = learning_rate(Hyper.of(rep), epoch * steps - 1, steps)
                 rows.append(
                     {
                         "epoch": epoch,
                         "replica": i,
-                        "seed": rep["seed"],
-                        "base_lr": rep["lr"],
-                        "lr": rep["lr"] * float(lr_factor(epoch * steps - 1, decay_steps, decay)),
+                        "seed": rep.seed,
+                        "base_lr": rep.lr,
+                        "lr": float(lr),
                         "train_loss": train_loss,
                         "train_acc": train_acc,
                         "val_loss": val_loss,
@@ -547,29 +694,73 @@ def train(
             bar.close()
         store.close()
 
+    host_states = to_host(states)
     best = int(np.nanargmin(last_losses)) if last_losses else 0
-    params = jax.tree_util.tree_map(lambda x: x[best], states.params)
+    params = jax.tree_util.tree_map(lambda x: x[best], host_states.params)
     complete = done >= tcfg.epochs
-    if complete:
+    if complete and jax.process_index() == 0:
         ckpt.save_model(run_dir, params)
         summary = dict(run_config)
         summary["result"] = {
             "best_replica": best,
-            **replicas[best],
+            **replica_dicts[best],
             "selection_loss": last_losses[best] if last_losses else None,
             "epochs": done,
         }
         ckpt.write_config(run_dir, summary)
+        for i, rep_dir in enumerate(dirs):
+            _save_replica(
+                rep_dir, run_config, replica_dicts[i], i, last_losses, done, host_states.params
+            )
     return TrainResult(
         model=nnx.merge(graphdef, params),
         best_replica=best,
-        replicas=replicas,
-        states=states,
+        replicas=replica_dicts,
+        states=host_states,
         epochs_done=done,
         complete=complete,
         history=list(log.rows),
         run_dir=run_dir,
+        replica_dirs=dirs,
+        losses=list(last_losses),
     )
+
+
+def _shard_mode(mesh: Mesh | None, num_replicas: int, batch_size: int) -> str:
+    """How a mesh splits the program: "replicas" (also without a mesh) or "batch"."""
+    if mesh is None:
+        return "replicas"
+    n = mesh_size(mesh)
+    if num_replicas % n == 0:
+        return "replicas"
+    if batch_size % n == 0:
+        return "batch"
+    raise ValueError(
+        f"cannot spread {num_replicas} replicas with minibatches of {batch_size} over {n} "
+        "devices: one of the two must divide by the device count"
+    )
+
+
+def _save_replica(
+    rep_dir: Path,
+    run_config: dict[str, Any],
+    replica: dict[str, Any],
+    index: int,
+    losses: list[float],
+    epochs: int,
+    params: Any,
+) -> None:
+    """A replica's own run directory: ``config.json`` (one replica) and ``model/``."""
+    rep_dir.mkdir(parents=True, exist_ok=True)
+    ckpt.save_model(rep_dir, jax.tree_util.tree_map(lambda x: x[index], params))
+    summary = {**run_config, "replicas": [replica]}
+    summary["result"] = {
+        "best_replica": 0,
+        **replica,
+        "selection_loss": losses[index] if losses else None,
+        "epochs": epochs,
+    }
+    ckpt.write_config(rep_dir, summary)
 
 
 def _meta(epoch: int, losses: list[float]) -> dict[str, Any]:

@@ -1,9 +1,12 @@
 """Configurations of the Strategic Transformer and of behaviour-cloning training.
 
 Both are frozen, hashable dataclasses: a :class:`ModelConfig` fixes every parameter shape,
-so it is static under ``jax.jit``; a :class:`TrainConfig` fixes the optimiser recipe and
-the minibatch size. Values that are swept inside one compiled program (seeds, learning
-rates) are arguments of :func:`bfsop_jax.training.bc.train`, not fields here.
+so it is static under ``jax.jit``; a :class:`TrainConfig` fixes the run length, the
+minibatch size and the default optimiser recipe. A :class:`Replica` is one member of a
+vmapped training program: its seed and every number of the recipe that changes no array
+shape (learning rate, clip, decay, warm-up, label smoothing, augmentation) can differ from
+the other replicas' and is a traced value, so replicas that differ only in them share one
+compiled program (:func:`bfsop_jax.training.bc.train`).
 
 Presets: ``"paper"`` holds the paper's values (d = 128, 6 layers, 8 heads, feed-forward
 512; Adam 1e-4, clip 1.0, step decay, 100 epochs); ``"demo"`` is a smaller model and a
@@ -24,6 +27,7 @@ __all__ = [
     "get_model_config",
     "get_train_config",
     "MODEL_PRESETS",
+    "Replica",
     "RunConfig",
     "TRAIN_PRESETS",
 ]
@@ -40,6 +44,8 @@ class TrainConfig:
     decay_every: int | None = None  # ... every this many epochs (None: a third of the run)
     keep_checkpoints: int = 3  # epoch checkpoints kept on disk
     augment: bool = False  # show each instance under a random coordinate symmetry
+    warmup_epochs: float = 0.0  # linear learning-rate warm-up over this many epochs
+    label_smoothing: float = 0.0  # weight of the uniform target over the allowed entries
 
     def __post_init__(self) -> None:
         if not isinstance(self.epochs, int) or self.epochs < 1:
@@ -54,6 +60,12 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.lr_decay must be in (0, 1], got {self.lr_decay}")
         if self.decay_every is not None and self.decay_every < 1:
             raise ValueError(f"TrainConfig.decay_every must be >= 1, got {self.decay_every}")
+        if self.warmup_epochs < 0:
+            raise ValueError(f"TrainConfig.warmup_epochs must be >= 0, got {self.warmup_epochs}")
+        if not 0 <= self.label_smoothing < 1:
+            raise ValueError(
+                f"TrainConfig.label_smoothing must be in [0, 1), got {self.label_smoothing}"
+            )
         if self.keep_checkpoints < 1:
             raise ValueError(
                 f"TrainConfig.keep_checkpoints must be >= 1, got {self.keep_checkpoints}"
@@ -72,6 +84,68 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
         return config_from_dict(cls, data)
+
+
+@dataclasses.dataclass(frozen=True)
+class Replica:
+    """One member of a vmapped training program: a seed and its recipe numbers.
+
+    Every field is a per-replica value of the compiled program (no field changes a shape),
+    so a program trains any list of replicas side by side. ``decay_every`` and
+    ``warmup_epochs`` are in epochs; the learning rate at optimiser step ``t`` (``S`` steps
+    per epoch) is ``lr * min(1, (t + 1) / (warmup_epochs * S)) * lr_decay **
+    floor(t / (decay_every * S))``.
+    """
+
+    seed: int = 0
+    lr: float = 1e-4
+    grad_clip: float = 1.0
+    lr_decay: float = 0.5
+    decay_every: int = 1
+    warmup_epochs: float = 0.0
+    label_smoothing: float = 0.0
+    augment: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
+            raise ValueError(f"Replica.seed must be an int, got {self.seed!r}")
+        if not self.lr > 0:
+            raise ValueError(f"Replica.lr must be positive, got {self.lr}")
+        # the remaining numbers obey the recipe's rules
+        TrainConfig(
+            grad_clip=self.grad_clip,
+            lr_decay=self.lr_decay,
+            decay_every=self.decay_every,
+            warmup_epochs=self.warmup_epochs,
+            label_smoothing=self.label_smoothing,
+        )
+
+    @classmethod
+    def of(cls, recipe: TrainConfig, seed: int = 0, lr: float = 1e-4, **overrides) -> Replica:
+        """The replica ``(seed, lr)`` with the recipe's other numbers (and ``overrides``)."""
+        values = {
+            "grad_clip": recipe.grad_clip,
+            "lr_decay": recipe.lr_decay,
+            "decay_every": recipe.decay_period,
+            "warmup_epochs": recipe.warmup_epochs,
+            "label_smoothing": recipe.label_smoothing,
+            "augment": recipe.augment,
+        }
+        unknown = set(overrides) - set(values)
+        if unknown:
+            raise ValueError(f"unknown replica fields {sorted(unknown)}")
+        values.update(overrides)
+        return cls(seed=int(seed), lr=float(lr), **values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], recipe: TrainConfig | None = None) -> Replica:
+        """From ``to_dict``; missing fields (older run files list only seed and lr) take
+        the recipe's values."""
+        data = dict(data)
+        return cls.of(recipe or TrainConfig(), data.pop("seed", 0), data.pop("lr", 1e-4), **data)
 
 
 @dataclasses.dataclass(frozen=True)
