@@ -24,6 +24,7 @@ __all__ = [
     "plot_category_ppl",
     "plot_house",
     "plot_ppl",
+    "plot_sweep",
     "plot_trajectories_side_by_side",
     "plot_trajectory",
 ]
@@ -378,5 +379,41 @@ def plot_trajectories_side_by_side(
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout(rect=(0, 0.06, 1, 0.97))
+    _save(fig, path)
+    return fig
+
+
+def plot_sweep(
+    results, grid, path: str | Path | None = None, reference: float | None = None
+) -> plt.Figure:
+    """Reward / VNS of every sweep combination against each swept key (one panel per key).
+
+    Args: results: rows with ``settings`` (key -> value) and ``reward_ratio``; grid: key ->
+    list of values (the panel's x positions, in grid order); reference: a horizontal line
+    (e.g. greedy insertion's ratio on the same instances).
+    """
+    keys = [k for k in grid if len(grid[k]) > 1] or list(grid)
+    fig, axes = plt.subplots(
+        1, len(keys), figsize=(3.0 * len(keys) + 0.6, 3.2), dpi=110, sharey=True, squeeze=False
+    )
+    ratios = np.asarray([r["reward_ratio"] for r in results], float)
+    rng = np.random.default_rng(0)  # horizontal jitter only, so equal points stay visible
+    for ax, key in zip(axes[0], keys, strict=True):
+        values = list(grid[key])
+        pos = np.asarray([values.index(r["settings"][key]) for r in results], float)
+        ax.scatter(pos + rng.uniform(-0.12, 0.12, len(pos)), ratios, s=18, alpha=0.7,
+                   color="#1f77b4", edgecolor="black", lw=0.4, zorder=3)  # fmt: skip
+        means = [ratios[pos == i].mean() for i in range(len(values))]
+        ax.plot(range(len(values)), means, color="#d62728", marker="_", ms=18, lw=1.2,
+                label="mean", zorder=4)  # fmt: skip
+        if reference is not None:
+            ax.axhline(reference, color="grey", ls="--", lw=1, label="greedy insertion")
+        ax.set_xticks(range(len(values)), [str(v) for v in values], fontsize=8)
+        ax.set_xlabel(key)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel("reward / VNS (greedy + 2-opt)")
+    axes[0][0].legend(fontsize=7, loc="best")
+    fig.suptitle(f"Sweep: {len(results)} combinations", fontsize=10)
+    fig.tight_layout()
     _save(fig, path)
     return fig

@@ -10,7 +10,10 @@ Stages (``--stage all`` runs them in order):
    plus retrospective virtual tasks on each exploration run's final partial map, labelled
    by the VNS through the batched host callback. Cached under ``--data-dir`` (default
    ``data/distill-<preset>``) as versioned shards: a second run reuses them and an
-   interrupted one resumes.
+   interrupted one resumes. Over several machines (``docs/scale-out.md``): each runs
+   ``--stage data --shard I/N --data-dir DIR_I`` (the shards with index % N == I), then
+   ``--merge-data DIR_0,DIR_1,... [--data-dir DST]`` gathers them into one dataset
+   (``--merge-data`` alone stops after the merge; with ``--stage train`` it goes on).
 2. ``train``: behaviour cloning with teacher forcing (orbax checkpoint every epoch,
    ``--resume`` continues), metrics in ``metrics.jsonl`` / ``metrics.csv`` and
    ``training_curve.png``. With ``--ablations`` three more models are trained on the same
@@ -40,6 +43,7 @@ import numpy as np
 
 from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import DataConfig, generate_dataset, pose_tasks
+from bfsop_jax.data.shards import merge_datasets
 from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training import RunConfig, train
@@ -128,10 +132,21 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=sorted(PRESETS))
     ap.add_argument("--out", default=None, help="run directory (default runs/distill-<preset>)")
-    ap.add_argument("--stage", default="all", choices=["all", "data", "train", "eval"])
+    ap.add_argument(
+        "--stage", default=None, choices=["all", "data", "train", "eval"],
+        help="default: all (data with --merge-data)",
+    )  # fmt: skip
     ap.add_argument(
         "--data-dir", default=None, help="dataset cache (default data/distill-<preset>)"
     )
+    ap.add_argument(
+        "--shard", default=None, metavar="I/N",
+        help="data: generate only the shards with index %% N == I (one of N machines)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--merge-data", default=None, metavar="DIR1,DIR2,...",
+        help="merge the dataset directories of --shard runs into --data-dir",
+    )  # fmt: skip
     ap.add_argument("--checkpoint", default=None, help="eval: trained run dir (default --out)")
     ap.add_argument("--eval-seeds", default=None, help="eval house seeds START:END (held out)")
     ap.add_argument("--houses", type=int, default=None, help="override: training houses")
@@ -142,7 +157,33 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--eval-tasks", type=int, default=None, help="override: tasks per eval house")
     ap.add_argument("--no-navigation", action="store_true", help="skip the navigation stage")
     ap.add_argument("--no-progress", action="store_true")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.stage is None:
+        args.stage = "data" if args.merge_data else "all"
+    if args.shard is not None:
+        args.shard = _parse_shard(args.shard)
+        if args.stage == "eval":
+            raise ValueError("--shard splits the data stage; it has no meaning for --stage eval")
+    if args.merge_data is not None:
+        args.merge_data = [d for d in (x.strip() for x in args.merge_data.split(",")) if d]
+        if not args.merge_data:
+            raise ValueError("--merge-data expects a comma-separated list of directories")
+        if args.shard is not None:
+            raise ValueError("--merge-data and --shard do not go together: generate, then merge")
+        if args.stage == "eval":
+            raise ValueError("--merge-data prepares the data; it has no meaning for --stage eval")
+    return args
+
+
+def _parse_shard(text: str) -> tuple[int, int]:
+    """``"I/N"`` -> ``(I, N)`` with ``0 <= I < N``; a ValueError naming ``--shard`` else."""
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        i, n = -1, 0
+    if not 0 <= i < n:
+        raise ValueError(f"--shard expects I/N with 0 <= I < N (e.g. 0/2), got {text!r}")
+    return i, n
 
 
 def _data_config(args, preset: DistillPreset) -> DataConfig:
@@ -172,12 +213,49 @@ def _run_config(preset: DistillPreset, data_cfg: DataConfig, epochs: int | None,
     return RunConfig(model=model, train=recipe, preset=data_cfg.preset)
 
 
+def _indices(xs: list[int], most: int = 8) -> str:
+    return ", ".join(map(str, xs[:most])) + (f", ... ({len(xs)} in all)" if len(xs) > most else "")
+
+
 def stage_data(args, preset: DistillPreset, data_dir: Path):
+    """Generate (``--shard I/N``: this process's part of) or merge the dataset.
+
+    Returns ``(store, cfg)``. Raises a ValueError when the stage goes on to training but
+    shards are missing (a ``--shard`` part, an incomplete merge): the message names them
+    and says how to finish.
+    """
     cfg = _data_config(args, preset)
+    shard = getattr(args, "shard", None) or (0, 1)
+    sources = getattr(args, "merge_data", None)
     t0 = time.perf_counter()
-    store = generate_dataset(data_dir, cfg, progress=not args.no_progress)
-    rows = sum(shard["rows"] for shard in store.meta["shards"].values())
-    print(f"dataset {data_dir}: {rows} instances ({time.perf_counter() - t0:.0f} s)")
+    if sources:
+        store = merge_datasets(data_dir, sources, config=dataclasses.asdict(cfg))
+        print(f"merged {', '.join(map(str, sources))} into {data_dir}")
+    else:
+        store = generate_dataset(data_dir, cfg, shard=shard, progress=not args.no_progress)
+    done = set(store.complete_shards())
+    rows = sum(store.meta["shards"][str(i)]["rows"] for i in done)
+    missing = [i for i in range(cfg.n_shards) if i not in done]
+    print(
+        f"dataset {data_dir}: {rows} instances, {cfg.n_shards - len(missing)}/{cfg.n_shards} "
+        f"shards ({time.perf_counter() - t0:.0f} s)"
+    )
+    if missing:
+        n = shard[1]
+        parts = sorted({i % n for i in missing}) if n > 1 else []
+        if parts:
+            shown = ", ".join(f"--shard {j}/{n}" for j in parts[:4]) + (", ..." * (len(parts) > 4))
+            how = f"generate them with --stage data {shown} (each into its own --data-dir)"
+        else:
+            how = "generate them with --stage data --shard I/N (each into its own --data-dir)"
+        msg = (
+            f"dataset {data_dir} lacks shards {_indices(missing)} of {cfg.n_shards}: {how}, "
+            "merge them with --merge-data DIR_0,DIR_1,... --data-dir DST, then run "
+            "--stage train --data-dir DST"
+        )
+        if args.stage != "data":
+            raise ValueError(msg)
+        print(f"note: {msg}")
     return store, cfg
 
 

@@ -30,3 +30,15 @@ def shared():
         return p
 
     return _get
+
+
+@pytest.fixture(scope="session")
+def smoke_data_dir(tmp_path_factory) -> Path:
+    """The ``smoke`` distillation dataset, generated once per test session (a cache that
+    ``experiments.distill`` and ``experiments.sweep`` reuse through ``--data-dir``)."""
+    from bfsop_jax.data.generate import generate_dataset
+    from experiments.distill import PRESETS
+
+    root = tmp_path_factory.mktemp("distill-smoke-data")
+    generate_dataset(root, PRESETS["smoke"].data, progress=False)
+    return root

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import re
+import zipfile
 
 import numpy as np
 import pytest
 
-from bfsop_jax.data import DataConfig, ShardStore, generate_dataset
+from bfsop_jax.data import DataConfig, ShardStore, generate_dataset, merge_datasets
 from bfsop_jax.sop.types import SOPInstance, evaluate, validate
 
 
@@ -77,3 +80,104 @@ def test_generated_virtual_tasks_are_valid_and_labelled(tmp_path):
     mtime = store.shard_path(0).stat().st_mtime_ns
     generate_dataset(tmp_path / "ds", cfg, progress=False)
     assert store.shard_path(0).stat().st_mtime_ns == mtime
+
+
+# -- generation over several machines: --shard I/N and merge_datasets ------------------------
+def _rezip(path, date_time=(1980, 1, 1, 0, 0, 0)):
+    """The same archive members with other zip timestamps (a shard made at another time)."""
+    with zipfile.ZipFile(path) as z:
+        members = [(n, z.read(n)) for n in z.namelist()]
+    with zipfile.ZipFile(path, "w") as z:
+        for name, data in members:
+            z.writestr(zipfile.ZipInfo(name, date_time), data)
+
+
+def test_shard_parts_from_two_machines_merge_into_the_whole_dataset(tmp_path, capsys):
+    """Shards 0/2 and 1/2 generated apart (through the distill CLI) and merged equal one
+    run of the whole configuration, array for array."""
+    from experiments import distill
+
+    a, b, c, d = (str(tmp_path / x) for x in "abcd")
+    common = ["--preset", "smoke", "--tasks", "4", "--no-progress"]
+    distill.main(common + ["--stage", "data", "--shard", "0/2", "--data-dir", a])
+    # the train stage of one part generates that part, then stops: the rest is missing
+    with pytest.raises(ValueError, match=r"lacks shards 0 of 2.*--shard 0/2.*--merge-data"):
+        distill.main(common + ["--stage", "train", "--shard", "1/2", "--data-dir", b])
+    assert ShardStore.open(a).complete_shards() == [0]
+    assert ShardStore.open(b).complete_shards() == [1]
+    distill.main(common + ["--merge-data", f"{a},{b}", "--data-dir", c])  # stops after it
+    assert "2/2 shards" in capsys.readouterr().out
+    cfg = distill._data_config(distill._parse(common), distill.PRESETS["smoke"])
+    whole = generate_dataset(d, cfg, progress=False).load()
+    merged = ShardStore(c, dataclasses.asdict(cfg))
+    assert merged.complete_shards() == [0, 1]
+    got = merged.load()
+    assert sorted(got) == sorted(whole)
+    for k in whole:
+        assert got[k].dtype == whole[k].dtype and np.array_equal(got[k], whole[k]), k
+    # merging into one of the sources works too, and a rerun copies nothing
+    merge_datasets(a, [a, b])
+    assert ShardStore.open(a).complete_shards() == [0, 1]
+    mtime = merged.shard_path(0).stat().st_mtime_ns
+    merge_datasets(c, [a, b, c])
+    assert merged.shard_path(0).stat().st_mtime_ns == mtime
+
+
+def test_merge_errors_and_interrupted_merge(tmp_path):
+    a, b = ShardStore(tmp_path / "a", {"k": 1}), ShardStore(tmp_path / "b", {"k": 1})
+    a.write(0, _arrays(4))
+    a.write(1, _arrays(2, 1))
+    b.write(1, _arrays(2, 1))
+    _rezip(b.shard_path(1))  # same data, other zip timestamps: not a conflict
+    b.write(2, _arrays(3, 2))
+    c = merge_datasets(tmp_path / "c", [tmp_path / "a", tmp_path / "b"])
+    assert c.complete_shards() == [0, 1, 2] and len(c.load()["y"]) == 9
+    assert not list(c.root.glob("*.tmp"))
+    # killed after a copy, before meta.json listed it: the rerun copies that shard again
+    meta = json.loads((c.root / "meta.json").read_text())
+    del meta["shards"]["2"]
+    (c.root / "meta.json").write_text(json.dumps(meta))
+    c.shard_path(2).write_bytes(b"partial")
+    c = merge_datasets(c.root, [a.root, b.root])
+    assert c.complete_shards() == [0, 1, 2]
+    assert np.array_equal(c.load([2])["x"], _arrays(3, 2)["x"])
+
+    other = ShardStore(tmp_path / "other", {"k": 2})
+    other.write(5, _arrays(1))
+    with pytest.raises(ValueError, match=re.escape(f"{other.root} was made with another")):
+        merge_datasets(tmp_path / "new", [a.root, other.root])
+    with pytest.raises(ValueError, match=re.escape(f"{c.root} was made with another")):
+        merge_datasets(c.root, [other.root])  # an existing destination must agree too
+    with pytest.raises(ValueError, match="requested configuration"):
+        merge_datasets(tmp_path / "new", [a.root], config={"k": 3})
+    assert not (tmp_path / "new").exists()  # nothing is created on a refused merge
+    bad = ShardStore(tmp_path / "bad", {"k": 1})
+    bad.write(1, _arrays(2, 7))  # shard 1 with other data than a's
+    with pytest.raises(ValueError, match="shard 1 differs"):
+        merge_datasets(tmp_path / "new", [a.root, bad.root])
+    with pytest.raises(ValueError, match="not a dataset directory"):
+        merge_datasets(tmp_path / "new", [tmp_path / "missing"])
+
+
+@pytest.mark.parametrize("value", ["3/2", "a/b", "0/0", "-1/2", "1", "0/2/3", ""])
+def test_distill_shard_flag_rejects_bad_values(value):
+    from experiments import distill
+
+    with pytest.raises(ValueError, match="--shard"):
+        distill._parse([f"--shard={value}"])
+
+
+def test_distill_shard_and_merge_flags_parse(capsys):
+    from experiments import distill
+
+    args = distill._parse(["--shard", "1/3"])
+    assert args.shard == (1, 3) and args.stage == "all"
+    args = distill._parse(["--merge-data", "x, y,"])
+    assert args.merge_data == ["x", "y"] and args.stage == "data"
+    with pytest.raises(ValueError, match="--merge-data and --shard"):
+        distill._parse(["--merge-data", "x", "--shard", "0/2"])
+    with pytest.raises(ValueError, match="--stage eval"):
+        distill._parse(["--shard", "0/2", "--stage", "eval"])
+    with pytest.raises(SystemExit):  # argparse takes "-1/2" for an option: its own error
+        distill._parse(["--shard", "-1/2"])
+    assert "argument --shard" in capsys.readouterr().err

@@ -91,11 +91,12 @@ def test_pose_tasks_on_held_out_houses():
 
 
 @pytest.mark.slow
-def test_distill_end_to_end_and_eval_rerun(tmp_path):
-    """The smoke preset: data -> train -> eval, then the eval stage alone on other seeds."""
+def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
+    """The smoke preset: data (the session's cached dataset) -> train -> eval, then the eval
+    stage alone on other seeds."""
     from experiments import distill
 
-    run, data = tmp_path / "run", tmp_path / "data"
+    run, data = tmp_path / "run", smoke_data_dir
     summary = distill.main(
         ["--preset", "smoke", "--out", str(run), "--data-dir", str(data), "--no-progress"]
     )

@@ -187,3 +187,38 @@ def test_symmetry_augmentation_trains_and_is_seeded(data):
     assert np.isfinite(runs[0]).all() and runs[0][-1] < runs[0][0]
     assert runs[0] == runs[1]  # same key, same symmetries
     assert runs[0] != runs[2]  # the symmetries change what the model sees
+
+
+def test_replicas_with_different_recipes_match_separate_runs(data, tmp_path):
+    """Clip, decay, warm-up, label smoothing and augmentation are per-replica values of one
+    program: three different replicas trained together end where each ends alone."""
+    from bfsop_jax.training import Replica
+
+    train_ds, val_ds = data
+    config = RunConfig(model=TINY, train=dataclasses.replace(RECIPE, epochs=2), preset="smoke")
+    members = [
+        Replica.of(config.train, 0, 3e-3, grad_clip=0.05, lr_decay=0.3),
+        Replica.of(config.train, 1, 1e-3, warmup_epochs=1.5, label_smoothing=0.2),
+        Replica.of(config.train, 2, 2e-3, augment=True, decay_every=1),
+    ]
+    together = train(config, train_ds, val_ds, tmp_path / "all", replicas=members,
+                     progress=False)  # fmt: skip
+    assert len(together.replica_dirs) == 3
+    for i, rep in enumerate(members):
+        alone = train(config, train_ds, val_ds, tmp_path / f"r{i}", replicas=[rep],
+                      progress=False)  # fmt: skip
+        for a, b in zip(
+            jax.tree_util.tree_leaves(together.states.params),
+            jax.tree_util.tree_leaves(alone.states.params),
+            strict=True,
+        ):
+            np.testing.assert_allclose(np.asarray(a)[i], np.asarray(b)[0], rtol=2e-4, atol=2e-6)
+        # the replica's own directory loads as a policy and is that replica
+        saved = json.loads((together.replica_dirs[i] / "config.json").read_text())
+        assert saved["replicas"] == [rep.to_dict()]
+    # the recipes differ: warm-up starts low, the learning rates logged follow each schedule
+    first = [r for r in together.history if r["epoch"] == 1]
+    steps = 64 // RECIPE.batch_size
+    assert first[1]["lr"] == pytest.approx(1e-3 * steps / (1.5 * steps))
+    second = [r for r in together.history if r["epoch"] == 2]
+    assert (first[2]["lr"], second[2]["lr"]) == pytest.approx((2e-3, 1e-3))  # x0.5 each epoch

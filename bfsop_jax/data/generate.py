@@ -179,6 +179,11 @@ def on_trajectory_decisions(
     return instances, plans, traj.planned
 
 
+# one jitted function for every call (a fresh vmap each call would be traced and
+# compiled again each time)
+_generate_houses = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)
+
+
 def _present_category(houses, j: int, key: jax.Array) -> int:
     """A random target category present in house ``j`` of a batch (host-side)."""
     cats = np.asarray(houses.object_category[j])
@@ -238,7 +243,7 @@ def pose_tasks(
     if seeds.size == 0:
         raise ValueError("pose_tasks needs at least one house seed")
     prior = jnp.asarray(default_prior())
-    gen = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)
+    gen = _generate_houses
     run = jax.jit(explore, static_argnums=4)
     pose = jax.jit(virtual_tasks, static_argnums=(2, 3, 4))
     parts, owners = [], []
@@ -282,7 +287,7 @@ def generate_dataset(
         return store
 
     prior = jnp.asarray(default_prior())
-    gen = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)
+    gen = _generate_houses
     run = jax.jit(explore, static_argnums=4)
     label = jax.jit(label_virtual_tasks, static_argnums=(3, 4))
     decide = jax.jit(on_trajectory_decisions, static_argnums=(4, 5))

@@ -40,6 +40,7 @@ __all__ = [
     "PLANNERS",
     "decoder_distance_mass",
     "evaluate_solvers",
+    "evaluate_teacher",
     "plot_distance_mass",
     "plot_tour_comparison",
     "take",
@@ -123,6 +124,17 @@ def _policy_batched(policy, instances: SOPInstance, options: dict[str, Any], bat
     return 1e3 * per_batch / batch, batch / per_batch, batch
 
 
+def evaluate_teacher(
+    instances: SOPInstance, vns_kwargs: dict[str, Any] | None = None, progress: bool = True
+) -> tuple[list[Solution], list[float]]:
+    """The VNS teacher's plans of every instance and the ms each took (one at a time):
+    the ``teacher`` argument of :func:`evaluate_solvers`, for several models to share."""
+    vns_kwargs = dict(vns_kwargs or {})
+    return _run_host_solver(
+        lambda x: solve_vns(x, seed=0, **vns_kwargs), instances, "VNS teacher", progress
+    )
+
+
 def evaluate_solvers(
     policy,
     instances: SOPInstance,
@@ -155,9 +167,7 @@ def evaluate_solvers(
     vns_kwargs = dict(vns_kwargs or {})
     planners = PLANNERS if planners is None else planners
     if teacher is None:
-        teacher = _run_host_solver(
-            lambda x: solve_vns(x, seed=0, **vns_kwargs), instances, "VNS teacher", progress
-        )
+        teacher = evaluate_teacher(instances, vns_kwargs, progress)
     vns_sols, vns_ms = teacher
     vns_r = [float(s.reward) for s in vns_sols]
     vns_c = [float(s.cost) for s in vns_sols]
