@@ -23,8 +23,14 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 __all__ = [
     "DATA_AXIS",
+    "ENV_COORDINATOR",
+    "ENV_NUM_PROCESSES",
+    "ENV_PROCESS_ID",
+    "barrier",
+    "is_primary",
     "data_mesh",
     "initialize",
+    "mesh_size",
     "place",
     "replicated",
     "sharded",
@@ -36,6 +42,19 @@ DATA_AXIS = "data"
 ENV_COORDINATOR = "BFSOP_COORDINATOR"  # host:port of process 0
 ENV_NUM_PROCESSES = "BFSOP_NUM_PROCESSES"
 ENV_PROCESS_ID = "BFSOP_PROCESS_ID"
+
+
+def is_primary() -> bool:
+    """True in process 0 (the one that writes shared files in a multi-host run)."""
+    return jax.process_index() == 0
+
+
+def barrier(name: str) -> None:
+    """Wait until every process reaches this point (a no-op with one process)."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(name)
 
 
 def data_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
@@ -79,7 +98,7 @@ def place(tree: Any, mesh: Mesh | None, leading: bool = True) -> Any:
     places on the default device (the single-device path).
     """
     if mesh is None:
-        return jax.device_put(tree, jax.devices()[0])
+        return jax.device_put(tree, jax.local_devices()[0])
     n = mesh_size(mesh)
     if leading:
         for leaf in jax.tree_util.tree_leaves(tree):

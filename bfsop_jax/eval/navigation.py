@@ -63,6 +63,7 @@ from bfsop_jax.config import Preset
 from bfsop_jax.env import observe, reset
 from bfsop_jax.navigation.distance import distance_field, distance_matrix
 from bfsop_jax.navigation.grid import plan_cell_to_xy, true_blocked, xy_to_plan_cell
+from bfsop_jax.parallel import mesh_size, place
 from bfsop_jax.sop import callback as vns_host
 from bfsop_jax.sop.builder import build_instance
 from bfsop_jax.world.constants import N_TARGETS, TARGET_NAMES
@@ -442,6 +443,7 @@ def evaluate_navigation(
     prior: np.ndarray | None = None,
     progress: bool = True,
     protocol: dict[str, Any] | None = None,
+    mesh: Any = None,
 ) -> dict[str, Any]:
     """Run ``methods`` on ``episodes``; write and return ``results.json``'s content.
 
@@ -455,9 +457,13 @@ def evaluate_navigation(
         settings: baseline config overrides, e.g. ``{"bfs_global": {"fraction": 0.4}}``.
         batch: episodes per vmapped chunk (results do not depend on it).
         protocol: extra description saved in ``protocol.json`` (preset, seeds, ...).
+        mesh: a one-axis (``"data"``) mesh of local devices: each chunk's episodes are
+            split over them (``batch`` is rounded up to a multiple of the device count).
     """
     preset = houses.preset
     out = Path(out_dir)
+    if mesh is not None:
+        batch = -(-batch // mesh_size(mesh)) * mesh_size(mesh)
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     if prior is None:
         from bfsop_jax.world.prior import default_prior
@@ -518,6 +524,8 @@ def evaluate_navigation(
             cats = jnp.asarray([e.category for e in padded], jnp.int32)
             budgets = jnp.full((batch,), preset.budget_m, jnp.float32)
             initial = jax.block_until_ready(runner.reset(keys, hs, cats, budgets))
+            if mesh is not None:  # episodes split over the devices
+                initial = place(jax.device_get(initial), mesh)
             t0 = time.perf_counter()
             final, traj = runner.run(initial, bar)
             wall += time.perf_counter() - t0 - (runner.compile_s if j_first else 0.0)

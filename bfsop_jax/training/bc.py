@@ -43,7 +43,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from bfsop_jax.model.decode import teacher_forced_logits
 from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
-from bfsop_jax.parallel import DATA_AXIS, mesh_size, place, to_host
+from bfsop_jax.parallel import DATA_AXIS, barrier, mesh_size, place, to_host
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.training import checkpoint as ckpt
 from bfsop_jax.training.config import Replica, RunConfig, TrainConfig
@@ -606,6 +606,7 @@ def train(
         },
     }
     _prepare_run_dir(run_dir, run_config, resume)
+    barrier("train:prepared")
 
     graphdef, states = init_states(config.model, tcfg, replicas=members)
     lead = shard == "replicas"
@@ -698,7 +699,7 @@ def train(
     best = int(np.nanargmin(last_losses)) if last_losses else 0
     params = jax.tree_util.tree_map(lambda x: x[best], host_states.params)
     complete = done >= tcfg.epochs
-    if complete and jax.process_index() == 0:
+    if complete:  # every process takes part in the (collective) saves
         ckpt.save_model(run_dir, params)
         summary = dict(run_config)
         summary["result"] = {

@@ -26,6 +26,8 @@ from typing import Any
 
 import orbax.checkpoint as ocp
 
+from bfsop_jax.parallel import barrier, is_primary
+
 __all__ = [
     "CheckpointStore",
     "CONFIG_FILE",
@@ -120,20 +122,28 @@ def _short(err: BaseException, limit: int = 400) -> str:
 
 
 def save_model(run_dir: str | os.PathLike, params: Any) -> Path:
-    """Write the chosen parameters to ``run_dir/model`` (replacing an older copy)."""
+    """Write the chosen parameters to ``run_dir/model`` (replacing an older copy).
+
+    In a multi-host run every process calls it (Orbax saves collectively); process 0
+    swaps the directories.
+    """
     path = Path(run_dir).absolute() / MODEL_DIR
     tmp = path.with_name(MODEL_DIR + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
+    if is_primary():
+        shutil.rmtree(tmp, ignore_errors=True)
+    barrier(f"save_model:clean:{path}")
     with ocp.StandardCheckpointer() as ckptr:
         ckptr.save(tmp, params)
         ckptr.wait_until_finished()
-    # swap in the complete copy: a reader sees the old model or the new one, never half
-    old = path.with_name(MODEL_DIR + ".old")
-    shutil.rmtree(old, ignore_errors=True)
-    if path.exists():
-        path.rename(old)
-    tmp.rename(path)
-    shutil.rmtree(old, ignore_errors=True)
+    if is_primary():
+        # swap in the complete copy: a reader sees the old model or the new one, never half
+        old = path.with_name(MODEL_DIR + ".old")
+        shutil.rmtree(old, ignore_errors=True)
+        if path.exists():
+            path.rename(old)
+        tmp.rename(path)
+        shutil.rmtree(old, ignore_errors=True)
+    barrier(f"save_model:done:{path}")
     return path
 
 
@@ -150,7 +160,10 @@ def load_model(run_dir: str | os.PathLike, target: Any) -> Any:
 
 
 def write_config(run_dir: str | os.PathLike, config: dict[str, Any]) -> None:
-    """Write ``config.json`` atomically (temporary file, then rename)."""
+    """Write ``config.json`` atomically (temporary file, then rename); in a multi-host run
+    only process 0 writes."""
+    if not is_primary():
+        return
     path = Path(run_dir) / CONFIG_FILE
     tmp = path.with_name(CONFIG_FILE + ".tmp")
     tmp.write_text(json.dumps(config, indent=1, sort_keys=True))

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from bfsop_jax.model.decode import TeacherForcing
+from bfsop_jax.parallel import is_primary
 
 __all__ = ["COLUMNS", "MetricsLog", "imitation_stats", "plot_training_curve"]
 
@@ -76,6 +77,8 @@ class MetricsLog:
     def append(self, rows: list[dict[str, Any]]) -> None:
         """Add the rows of one epoch and refresh the CSV and the curve."""
         self.rows.extend(rows)
+        if not is_primary():
+            return
         with self.jsonl.open("a") as f:
             for row in rows:
                 f.write(json.dumps(row) + "\n")
@@ -83,6 +86,8 @@ class MetricsLog:
         plot_training_curve(self.rows, self.png)
 
     def _rewrite(self) -> None:
+        if not is_primary():  # one writer in a multi-host run
+            return
         tmp = self.jsonl.with_suffix(".jsonl.tmp")
         tmp.write_text("".join(json.dumps(r) + "\n" for r in self.rows))
         os.replace(tmp, self.jsonl)
