@@ -69,10 +69,25 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--settings", default=None, help='JSON overrides, e.g. {"bfs_global": {"fraction": 0.4}}'
     )
     ap.add_argument("--batch", type=int, default=30, help="episodes per vmapped chunk")
+    ap.add_argument("--devices", type=int, default=None,
+                    help="split chunks over the first N local devices (default all)")  # fmt: skip
     ap.add_argument("--scan", action="store_true", help="scan baseline settings (validation)")
     ap.add_argument("--out", default=None, help="output dir (default runs/evaluate-<preset>)")
     ap.add_argument("--no-progress", action="store_true")
     return ap.parse_args(argv)
+
+
+def _mesh(devices: int | None):
+    """A mesh over the first ``devices`` local devices (all by default); None for one."""
+    import jax
+
+    from bfsop_jax.parallel import data_mesh
+
+    local = jax.local_devices()
+    n = len(local) if devices is None else devices
+    if not 1 <= n <= len(local):
+        _fail(f"--devices must be in [1, {len(local)}], got {devices}")
+    return data_mesh(local[:n]) if n > 1 else None
 
 
 def _fail(message: str) -> None:
@@ -148,6 +163,7 @@ def run_table1(args: argparse.Namespace, c: dict[str, Any], out: Path) -> dict[s
     result = nav.evaluate_navigation(
         c["methods"], episodes, houses, out, policy=c["policy"], settings=c["settings"],
         batch=args.batch, progress=not args.no_progress, protocol=protocol,
+        mesh=_mesh(args.devices),
     )  # fmt: skip
     result["wall_s"] = time.perf_counter() - t0
     nav.write_figures(result, out, houses)
@@ -171,7 +187,7 @@ def run_scan(args: argparse.Namespace, c: dict[str, Any], out: Path) -> list[dic
             result = nav.evaluate_navigation(
                 [method], episodes, houses, out / f"{method}_{tag}",
                 settings={_settings_key(method): setting}, policy=c["policy"],
-                batch=args.batch, progress=not args.no_progress,
+                batch=args.batch, progress=not args.no_progress, mesh=_mesh(args.devices),
             )  # fmt: skip
             s = result["methods"][method]
             rows.append({

@@ -42,7 +42,7 @@ import numpy as np
 from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import pose_tasks
 from bfsop_jax.eval import solvers as solver_eval
-from bfsop_jax.parallel import data_mesh, initialize, mesh_size
+from bfsop_jax.parallel import barrier, data_mesh, initialize, is_primary, mesh_size
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.sop.types import Solution, plan_length
 from bfsop_jax.training import train
@@ -95,6 +95,8 @@ def _mesh(devices: int | None):
 
 
 def _atomic_json(obj: Any, path: Path) -> None:
+    if not is_primary():  # one writer in a multi-host run
+        return
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(obj, indent=1, sort_keys=True) + "\n")
     os.replace(tmp, path)
@@ -187,6 +189,9 @@ def run_group(
             resume=resume, progress=progress, dataset_meta=meta, mesh=mesh,
         )  # fmt: skip
         print(f"  trained in {time.perf_counter() - t0:.0f} s")
+    if not is_primary():  # process 0 evaluates and writes the results
+        barrier(f"sweep:evaluated:{group.name}")
+        return []
     rows = _last_rows(group_dir)
     instances, teacher = evaluation
     for i, (combo, run_dir) in enumerate(zip(group.members, run_dirs, strict=True)):
@@ -218,6 +223,7 @@ def run_group(
             "instances": res["instances"],
         }
         _atomic_json(results[i], run_dir / RESULT_FILE)
+    barrier(f"sweep:evaluated:{group.name}")
     return results
 
 
@@ -316,11 +322,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     data_args = argparse.Namespace(houses=None, tasks=None, no_progress=args.no_progress)
-    store, cfg = distill.stage_data(data_args, preset, data_dir)
+    if is_primary():
+        store, cfg = distill.stage_data(data_args, preset, data_dir)
+    barrier("sweep:data")
+    if not is_primary():
+        store, cfg = distill.stage_data(data_args, preset, data_dir)
     train_ds, val_ds = distill._split(store, cfg, preset.val_houses)
     meta = {"data_dir": str(store.root), "data_config": dataclasses.asdict(cfg),
             "default_lr": preset.lrs[0]}  # fmt: skip
-    evaluation, eval_key = _eval_set(args, preset, out, progress)
+    if is_primary():  # process 0 builds the caches, the others then read them
+        evaluation, eval_key = _eval_set(args, preset, out, progress)
+    barrier("sweep:eval-set")
+    if not is_primary():
+        evaluation, eval_key = _eval_set(args, preset, out, progress)
     from bfsop_jax.training.sweep import groups as grid_groups
 
     all_groups = grid_groups(grid)
@@ -343,6 +357,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         + ", ".join(f"{k}={v}" for k, v in _fixed(base).items() if k not in grid)
         + "."
     )
+    if not is_primary():
+        return {"results": [], "groups": [g.name for g in all_groups]}
     text = write_outputs(results, grid, out, header)
     print(text)
     print(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}")

@@ -195,7 +195,8 @@ def test_replicas_with_different_recipes_match_separate_runs(data, tmp_path):
     from bfsop_jax.training import Replica
 
     train_ds, val_ds = data
-    config = RunConfig(model=TINY, train=dataclasses.replace(RECIPE, epochs=2), preset="smoke")
+    small = dataclasses.replace(TINY, n_layers=1)  # the rule, not the model, is under test
+    config = RunConfig(model=small, train=dataclasses.replace(RECIPE, epochs=2), preset="smoke")
     members = [
         Replica.of(config.train, 0, 3e-3, grad_clip=0.05, lr_decay=0.3),
         Replica.of(config.train, 1, 1e-3, warmup_epochs=1.5, label_smoothing=0.2),
