@@ -93,9 +93,12 @@ def process_mode(out: Path, index: int, count: int, port: int) -> dict:
 
     assert jax.process_count() == count and len(jax.local_devices()) == 2
     params = train_case(out / "run", 2 * count, parallel.data_mesh())
-    parallel.barrier("worker:done")
-    if index == 0:
+    if index == 0:  # one process alone reads a model (no collective restore)
+        from bfsop_jax.policy import StrategicPolicy
+
+        StrategicPolicy.load(out / "run" / "replicas" / "001")
         np.savez(out / "params.npz", *params)
+    parallel.barrier("worker:done")
     jax.distributed.shutdown()
     return {"process": index, "devices": len(jax.devices())}
 

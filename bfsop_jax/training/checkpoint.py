@@ -153,10 +153,21 @@ def load_model(run_dir: str | os.PathLike, target: Any) -> Any:
     if not path.is_dir():
         raise ValueError(f"no saved model in {Path(run_dir)} (missing {MODEL_DIR}/)")
     try:
-        with ocp.StandardCheckpointer() as ckptr:
+        with ocp.StandardCheckpointer(multiprocessing_options=_this_process_only()) as ckptr:
             return ckptr.restore(path, target)
     except Exception as err:
         raise ValueError(f"cannot read model checkpoint {path}: {_short(err)}") from None
+
+
+def _this_process_only() -> ocp.options.MultiprocessingOptions:
+    """Reading a model is local: in a multi-host run one process may load a policy alone
+    (Orbax would otherwise wait for the others at its barriers)."""
+    import jax
+
+    if jax.process_count() == 1:
+        return ocp.options.MultiprocessingOptions()
+    me = jax.process_index()
+    return ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me})
 
 
 def write_config(run_dir: str | os.PathLike, config: dict[str, Any]) -> None:
