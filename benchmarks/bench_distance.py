@@ -20,12 +20,12 @@ with ``block_until_ready``; compile time is reported separately.
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.timing import time_calls
 from bfsop_jax.config import PRESET_NAMES, get_preset
 from bfsop_jax.navigation import (
     distance_field,
@@ -89,15 +89,8 @@ def house_maps(preset, n: int, seed: int = 0) -> tuple[np.ndarray, str]:
 
 def _time(fn, *args, repeats: int) -> tuple[float, list[float]]:
     """(compile + first run seconds, steady-state run times in ms)."""
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append((time.perf_counter() - t0) * 1e3)
-    return first, times
+    t = time_calls(fn, *args, repeats=repeats)
+    return t.first_s, t.ms
 
 
 def run(

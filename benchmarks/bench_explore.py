@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.timing import time_calls
 from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
 from bfsop_jax.config import EVAL_SEED_START, get_preset
 from bfsop_jax.env import observe, reset, step
@@ -40,16 +41,6 @@ def _frontier_left(state, preset):
     blocked = motion_blocked(state.belief, state.pose[:2], preset)
     field = distance_field(blocked, state.pose[:2], preset)
     return nearest_frontier(frontier_clusters(state.belief, preset), field, preset)[0] >= 0
-
-
-def _best_time(fn, *args, repeats: int = 3) -> float:
-    jax.block_until_ready(fn(*args))
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def run(preset_name: str, houses: int) -> dict:
@@ -80,8 +71,8 @@ def run(preset_name: str, houses: int) -> dict:
     act = jax.jit(jax.vmap(lambda m, s: fbe.act(m, observe(s), preset)))
     env_step = jax.jit(jax.vmap(lambda s, a: step(s, a, preset)))
     action, _, _ = act(memory, states)
-    act_s = _best_time(act, memory, states)
-    step_s = _best_time(env_step, states, action)
+    act_s = time_calls(act, memory, states, repeats=3).best
+    step_s = time_calls(env_step, states, action, repeats=3).best
     return {
         "preset": preset_name,
         "houses": houses,

@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import argparse
 import functools
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.timing import time_calls
 from bfsop_jax.config import Preset, get_preset
 from bfsop_jax.sensing import mapping
 
@@ -49,17 +49,8 @@ def random_batch(preset: Preset, batch: int, seed: int = 0):
 
 def _time(fn, args, repeats: int) -> tuple[float, float]:
     """(compile + first call seconds, best seconds per call over ``repeats`` rounds of 5)."""
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(5):
-            out = fn(*args)
-        jax.block_until_ready(out)
-        best = min(best, (time.perf_counter() - t0) / 5)
-    return first, best
+    t = time_calls(fn, *args, repeats=repeats, inner=5)
+    return t.first_s, t.best
 
 
 def run(preset_name: str = "demo", batch: int = 64, repeats: int = 10) -> dict:

@@ -33,21 +33,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.timing import time_calls
 from bfsop_jax.config import EVAL_SEED_START, get_preset
 from bfsop_jax.env import observe, step
 from bfsop_jax.eval import navigation as nav
 from bfsop_jax.sop import callback as vns_host
 from bfsop_jax.world.prior import default_prior
-
-
-def _median_time(fn, *args, repeats: int = 5) -> float:
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 def run(preset_name: str, batch: int, methods: list[str], checkpoint: str | None) -> list[dict]:
@@ -83,8 +74,8 @@ def run(preset_name: str, batch: int, methods: list[str], checkpoint: str | None
         act = jax.jit(jax.vmap(lambda m, s, st=strategy: st.act(m, observe(s), preset)))
         env = jax.jit(jax.vmap(lambda s, a: step(s, a, preset)))
         action = act(memory, states)[0]
-        decide = _median_time(act, memory, states)
-        env_s = _median_time(env, states, action)
+        decide = time_calls(act, memory, states).median
+        env_s = time_calls(env, states, action).median
         plan_ms = nav._planner_latency_ms(strategy, final, preset)
         moves = int(np.asarray(traj.moved).sum())
         rows.append({
