@@ -21,6 +21,7 @@ __all__ = [
     "VALIDATION_SEED_START",
     "get_preset",
     "parse_seed_range",
+    "require_preset",
 ]
 
 # House seeds: training houses use seeds below EVAL_SEED_START, evaluation houses start
@@ -142,7 +143,9 @@ PRESET_NAMES: tuple[str, ...] = tuple(_PRESETS)
 def get_preset(name: str | Preset) -> Preset:
     """Return the preset called ``name`` ("smoke", "demo" or "paper").
 
-    A :class:`Preset` passes through unchanged, so functions can accept either.
+    A :class:`Preset` passes through unchanged. The public entry points (house generation
+    and import, ``env.reset`` / ``env.step``, the command lines) accept either and convert
+    once here; everything below them takes a :class:`Preset` (:func:`require_preset`).
     """
     if isinstance(name, Preset):
         return name
@@ -151,6 +154,17 @@ def get_preset(name: str | Preset) -> Preset:
     except (KeyError, TypeError):
         valid = ", ".join(repr(n) for n in PRESET_NAMES)
         raise ValueError(f"unknown preset {name!r}; valid presets are {valid}") from None
+
+
+def require_preset(preset: Preset) -> Preset:
+    """``preset`` itself if it is a :class:`Preset`; a ValueError naming the type else
+    (internal functions take presets; names are resolved once, by :func:`get_preset`)."""
+    if not isinstance(preset, Preset):
+        raise ValueError(
+            f"preset must be a bfsop_jax.config.Preset, got {type(preset).__name__} "
+            "(resolve names with bfsop_jax.config.get_preset)"
+        )
+    return preset
 
 
 def parse_seed_range(text: str) -> range:

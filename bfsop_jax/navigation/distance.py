@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.config import Preset, require_preset
 from bfsop_jax.navigation.grid import xy_to_plan_cell
 
 __all__ = [
@@ -254,13 +254,13 @@ def _check_blocked(blocked: jax.Array, preset: Preset) -> None:
 
 
 def distance_fields_from_cells(
-    blocked: jax.Array, cells: jax.Array, valid: jax.Array, preset: Preset | str
+    blocked: jax.Array, cells: jax.Array, valid: jax.Array, preset: Preset
 ) -> jax.Array:
     """Fields from source cells: [Hp, Wp] bool, [S, 2] int32, [S] bool -> [S, Hp, Wp].
 
     Blocked source cells are snapped (module docstring); invalid sources give all-inf.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     _check_blocked(blocked, preset)
     blocked = jnp.asarray(blocked, bool)
     src, found = snap_to_free(blocked, jnp.asarray(cells, jnp.int32))
@@ -269,26 +269,26 @@ def distance_fields_from_cells(
 
 
 def sweep_rounds(
-    blocked: jax.Array, cells: jax.Array, valid: jax.Array, preset: Preset | str
+    blocked: jax.Array, cells: jax.Array, valid: jax.Array, preset: Preset
 ) -> jax.Array:
     """Diagnostic: rounds of four sweeps the solver runs for these sources (int32).
 
     The last round is the one that finds nothing left to change.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     _check_blocked(blocked, preset)
     blocked = jnp.asarray(blocked, bool)
     src, found = snap_to_free(blocked, jnp.asarray(cells, jnp.int32))
     return _solve(blocked, src, jnp.asarray(valid, bool) & found, preset.plan_cell_size)[1]
 
 
-def distance_fields(blocked: jax.Array, sources_xy: jax.Array, preset: Preset | str) -> jax.Array:
+def distance_fields(blocked: jax.Array, sources_xy: jax.Array, preset: Preset) -> jax.Array:
     """Geodesic distance (metres) from each source: [Hp, Wp] bool, [S, 2] xy -> [S, Hp, Wp].
 
     ``inf`` where blocked or unreachable. Equals Dijkstra on the graph of the module
     docstring up to float32 rounding.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     sources_xy = jnp.asarray(sources_xy, jnp.float32)
     if sources_xy.ndim != 2 or sources_xy.shape[-1] != 2:
         raise ValueError(f"sources_xy must have shape [S, 2], got {sources_xy.shape}")
@@ -297,7 +297,7 @@ def distance_fields(blocked: jax.Array, sources_xy: jax.Array, preset: Preset | 
     return distance_fields_from_cells(blocked, cells, valid, preset)
 
 
-def distance_field(blocked: jax.Array, source_xy: jax.Array, preset: Preset | str) -> jax.Array:
+def distance_field(blocked: jax.Array, source_xy: jax.Array, preset: Preset) -> jax.Array:
     """Geodesic distance (metres) from one point: [Hp, Wp] bool, [2] xy -> [Hp, Wp] float32."""
     source_xy = jnp.asarray(source_xy, jnp.float32)
     if source_xy.shape != (2,):
@@ -306,7 +306,7 @@ def distance_field(blocked: jax.Array, source_xy: jax.Array, preset: Preset | st
 
 
 def distance_matrix(
-    blocked: jax.Array, points_xy: jax.Array, valid: jax.Array, preset: Preset | str
+    blocked: jax.Array, points_xy: jax.Array, valid: jax.Array, preset: Preset
 ) -> jax.Array:
     """Pairwise geodesic distances: [Hp, Wp] bool, [S, 2] xy, [S] bool -> [S, S] float32.
 
@@ -314,7 +314,7 @@ def distance_matrix(
     symmetric with an elementwise min with its transpose; ``inf`` for invalid points and
     unreachable pairs; 0 on the diagonal of valid points.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     _check_blocked(blocked, preset)
     points_xy = jnp.asarray(points_xy, jnp.float32)
     if points_xy.ndim != 2 or points_xy.shape[-1] != 2:

@@ -24,7 +24,7 @@ import numpy as np
 from flax import struct
 from jax import lax
 
-from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.config import Preset, require_preset
 from bfsop_jax.navigation.grid import plan_cell_to_xy, planning_blocked, xy_to_plan_cell
 
 __all__ = [
@@ -60,9 +60,9 @@ def _block_counts(mask: jax.Array, preset: Preset) -> jax.Array:
     return m.reshape(hp, f, wp, f).sum(axis=(1, 3))
 
 
-def plan_cell_states(belief: jax.Array, preset: Preset | str) -> tuple[jax.Array, jax.Array]:
+def plan_cell_states(belief: jax.Array, preset: Preset) -> tuple[jax.Array, jax.Array]:
     """Free and unknown planning cells of a belief (module docstring): two [Hp, Wp] bool."""
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     if belief.shape[-2:] != tuple(preset.grid_shape):
         raise ValueError(
             f"belief has shape {belief.shape}, preset {preset.name!r} expects grid_shape "
@@ -81,9 +81,9 @@ def plan_cell_states(belief: jax.Array, preset: Preset | str) -> tuple[jax.Array
     return free, unknown
 
 
-def frontier_cells(belief: jax.Array, preset: Preset | str) -> jax.Array:
+def frontier_cells(belief: jax.Array, preset: Preset) -> jax.Array:
     """Frontier planning cells of a belief: [H, W] float32 log-odds -> [Hp, Wp] bool."""
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     free, unknown = plan_cell_states(belief, preset)
     return frontier_mask(free, unknown, planning_blocked(belief, preset))
 
@@ -153,10 +153,10 @@ def _component_labels(cells: jax.Array) -> jax.Array:
 
 
 def cluster_frontier_cells(
-    cells: jax.Array, preset: Preset | str, min_size: int = MIN_CLUSTER_CELLS
+    cells: jax.Array, preset: Preset, min_size: int = MIN_CLUSTER_CELLS
 ) -> Frontiers:
     """Cluster a [Hp, Wp] bool frontier mask into :class:`Frontiers` (module docstring)."""
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     hp, wp = cells.shape
     n = hp * wp
     f_max = preset.max_frontier_clusters
@@ -190,21 +190,21 @@ def cluster_frontier_cells(
     return Frontiers(xy=xy, size=jnp.where(valid, top_size, 0).astype(jnp.int32), valid=valid)
 
 
-def frontier_clusters(belief: jax.Array, preset: Preset | str) -> Frontiers:
+def frontier_clusters(belief: jax.Array, preset: Preset) -> Frontiers:
     """Frontier clusters of a belief ([H, W] float32 log-odds), largest first."""
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     return cluster_frontier_cells(frontier_cells(belief, preset), preset)
 
 
 def nearest_frontier(
-    frontiers: Frontiers, field_from_agent: jax.Array, preset: Preset | str
+    frontiers: Frontiers, field_from_agent: jax.Array, preset: Preset
 ) -> tuple[jax.Array, jax.Array]:
     """The geodesically nearest frontier: ``(index int32, distance float32 metres)``.
 
     ``field_from_agent`` is the [Hp, Wp] distance field from the agent. Returns
     ``(-1, inf)`` when no valid frontier is reachable.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     cell = xy_to_plan_cell(frontiers.xy, preset)
     d = jnp.where(frontiers.valid, field_from_agent[cell[:, 0], cell[:, 1]], jnp.inf)
     k = jnp.argmin(d).astype(jnp.int32)

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.config import Preset, require_preset
 
 __all__ = [
     "ESCAPE_RADIUS",
@@ -94,7 +94,7 @@ def _offset_bounds(preset: Preset) -> tuple[int, int]:
     return max(0, -min(min(o) for o in offsets)), max(max(o) for o in offsets) + 1
 
 
-def cell_blocked(belief: jax.Array, cells: jax.Array, preset: Preset | str) -> jax.Array:
+def cell_blocked(belief: jax.Array, cells: jax.Array, preset: Preset) -> jax.Array:
     """The blocking rule of :func:`planning_blocked` for a few planning cells only.
 
     ``belief`` [H, W] float32 log-odds, ``cells`` [..., 2] int32 (row, col) -> [...] bool.
@@ -102,7 +102,7 @@ def cell_blocked(belief: jax.Array, cells: jax.Array, preset: Preset | str) -> j
     per cell), so the traversability gate and the planner can never disagree on a cell.
     Cells outside the planning grid are blocked.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     h, w = preset.grid_shape
     hp, wp = preset.plan_shape
     f = preset.plan_factor
@@ -117,28 +117,28 @@ def cell_blocked(belief: jax.Array, cells: jax.Array, preset: Preset | str) -> j
     return jnp.any(occ | ~inside, axis=-1) | ~on_grid
 
 
-def planning_blocked(belief: jax.Array, preset: Preset | str) -> jax.Array:
+def planning_blocked(belief: jax.Array, preset: Preset) -> jax.Array:
     """Optimistic planning map of a belief: [H, W] float32 log-odds -> [Hp, Wp] bool.
 
     Unknown is free; a planning cell is blocked when a *known-occupied* fine cell
     (log-odds > ``logodds_known``) lies within the robot radius of its centre.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     return _inflate(belief > preset.logodds_known, preset)
 
 
-def true_blocked(occupied: jax.Array, preset: Preset | str) -> jax.Array:
+def true_blocked(occupied: jax.Array, preset: Preset) -> jax.Array:
     """Planning map of the true world: [H, W] bool occupancy -> [Hp, Wp] bool."""
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     return _inflate(occupied, preset)
 
 
-def xy_to_plan_cell(xy: jax.Array, preset: Preset | str) -> jax.Array:
+def xy_to_plan_cell(xy: jax.Array, preset: Preset) -> jax.Array:
     """Planning cell (row, col) containing each point: [..., 2] xy metres -> [..., 2] int32.
 
     Points outside the map are clipped to the nearest border cell.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     hp, wp = preset.plan_shape
     xy = jnp.asarray(xy, jnp.float32)
     pc = preset.plan_cell_size
@@ -147,9 +147,9 @@ def xy_to_plan_cell(xy: jax.Array, preset: Preset | str) -> jax.Array:
     return jnp.stack([row, col], axis=-1)
 
 
-def plan_cell_to_xy(cells: jax.Array, preset: Preset | str) -> jax.Array:
+def plan_cell_to_xy(cells: jax.Array, preset: Preset) -> jax.Array:
     """Centre of each planning cell: [..., 2] (row, col) -> [..., 2] float32 xy metres."""
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     cells = jnp.asarray(cells)
     pc = np.float32(preset.plan_cell_size)
     x = (cells[..., 1].astype(jnp.float32) + 0.5) * pc
@@ -160,7 +160,7 @@ def plan_cell_to_xy(cells: jax.Array, preset: Preset | str) -> jax.Array:
 def motion_blocked(
     belief: jax.Array,
     agent_xy: jax.Array,
-    preset: Preset | str,
+    preset: Preset,
     blocked: jax.Array | None = None,
 ) -> jax.Array:
     """The planning map an agent at ``agent_xy`` [2] (metres) moves on: [Hp, Wp] bool.
@@ -172,7 +172,7 @@ def motion_blocked(
     with every goal unreachable. ``blocked`` is the belief's :func:`planning_blocked` map
     when the caller already has it.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     if blocked is None:
         blocked = planning_blocked(belief, preset)
     h, w = preset.grid_shape

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.config import Preset, require_preset
 from bfsop_jax.sensing.mapping import ANGLE_UNITS
 
 __all__ = ["NEIGHBOURS", "move_headings", "move_lengths", "next_cell"]
@@ -49,7 +49,7 @@ def move_headings() -> np.ndarray:
     )
 
 
-def next_cell(field: jax.Array, cell: jax.Array, preset: Preset | str):
+def next_cell(field: jax.Array, cell: jax.Array, preset: Preset):
     """One descent step from ``cell`` on ``field`` [Hp, Wp] (metres).
 
     Returns ``(next [2] int32, move int32, at_goal bool, ok bool)``: ``move`` indexes
@@ -57,7 +57,7 @@ def next_cell(field: jax.Array, cell: jax.Array, preset: Preset | str):
     (then ``next == cell``); ``ok`` is False when no neighbour descends (unreachable goal,
     or nothing reachable around a blocked cell).
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     hp, wp = field.shape
     nb = cell[None, :] + jnp.asarray(NEIGHBOURS)  # [8, 2]
     inside = (nb[:, 0] >= 0) & (nb[:, 0] < hp) & (nb[:, 1] >= 0) & (nb[:, 1] < wp)

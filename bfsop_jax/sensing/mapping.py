@@ -56,7 +56,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from bfsop_jax.config import Preset
+from bfsop_jax.config import Preset, require_preset
 
 __all__ = [
     "ANGLE_UNITS",
@@ -146,8 +146,7 @@ def _window_shape(preset: Preset) -> tuple[int, int]:
 
 
 def _check_preset(preset: Preset) -> None:
-    if not isinstance(preset, Preset):
-        raise ValueError(f"preset must be a bfsop_jax.config.Preset, got {type(preset).__name__}")
+    require_preset(preset)
     if preset.n_rays < 1:
         raise ValueError(f"preset.n_rays must be >= 1, got {preset.n_rays}")
     if not preset.sensor_range_m > 0:

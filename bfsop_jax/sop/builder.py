@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.config import Preset, require_preset
 from bfsop_jax.navigation.distance import distance_field, distance_matrix
 from bfsop_jax.navigation.grid import planning_blocked, xy_to_plan_cell
 from bfsop_jax.sop.types import SOPInstance
@@ -149,7 +149,7 @@ def build_instance(
     object_half_extent: jax.Array,
     prior: jax.Array,
     category: jax.Array,
-    preset: Preset | str,
+    preset: Preset,
 ) -> tuple[SOPInstance, LandmarkChoice]:
     """The SOP instance of the current exploitation decision (jit/vmap-able).
 
@@ -165,7 +165,7 @@ def build_instance(
 
     Returns ``(instance, landmarks)``: N = 1 + n_loi * n_viewpoints, K = 1 + n_loi.
     """
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     agent_xy = jnp.asarray(agent_xy, jnp.float32)
     blocked = planning_blocked(belief, preset)
     choice = select_landmarks(

@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.config import Preset, get_preset, require_preset
 from bfsop_jax.world import constants as C
 from bfsop_jax.world.types import House
 
@@ -194,9 +194,9 @@ class Floorplan:
     door_valid: jax.Array  # [D] bool; D = R - 1 + extra_doors (one per line, then extras)
 
 
-def generate_floorplan(key: jax.Array, preset: Preset | str) -> Floorplan:
+def generate_floorplan(key: jax.Array, preset: Preset) -> Floorplan:
     """Recursive binary partition of the footprint plus doors (shapes from ``preset``)."""
-    preset = get_preset(preset)
+    preset = require_preset(preset)
     h_cells, w_cells = preset.grid_shape
     n_slots = preset.max_rooms
     tl, tr = _wall_cells(preset)
