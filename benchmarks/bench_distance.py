@@ -9,7 +9,7 @@ For each preset it builds a few house maps (the procedural generator when availa
 otherwise a hand-made recursive floorplan with doors and furniture), draws ``n_points``
 random free planning cells, and times after compilation:
 
-- ``distance_matrix`` for those points (the SOP cost matrix of SPEC 8.1),
+- ``distance_matrix`` for those points (the SOP cost matrix of docs/design.md §7.1),
 - one ``distance_field`` (what the environment computes per macro step),
 - ``jax.vmap`` of ``distance_field`` over a batch of 16 maps (batched rollouts),
 

@@ -25,7 +25,7 @@ __all__ = [
 ]
 
 # House seeds: training houses use seeds below EVAL_SEED_START, evaluation houses start
-# there, so the two never meet (SPEC 9.2).
+# there, so the two never meet (docs/design.md §8.2).
 EVAL_SEED_START = 1_000_000
 # Validation houses (choosing baseline settings, budgets) start here: neither training
 # houses nor the held-out test houses of the evaluation.
@@ -34,7 +34,7 @@ VALIDATION_SEED_START = 2_000_000
 
 @dataclasses.dataclass(frozen=True)
 class Preset:
-    """Static configuration of one experimental scale (SPEC 3.1)."""
+    """Static configuration of one experimental scale (docs/design.md §2.1)."""
 
     name: str
     # --- house footprint and generator -------------------------------------------------
@@ -52,7 +52,7 @@ class Preset:
     robot_radius_m: float = 0.2
     micro_steps: int = 8  # motion steps (one planning cell each) per env.step (a macro action)
     plan_factor: int = 2  # planning grid cell = plan_factor * cell_size (0.2 m)
-    # --- sensing (SPEC 4) ---------------------------------------------------------------
+    # --- sensing (docs/design.md §3) --------------------------------------------------------------
     fov_deg: float = 90.0
     n_rays: int = 91  # ~1 ray per degree across the field of view
     sensor_range_m: float = 5.0
@@ -65,14 +65,14 @@ class Preset:
     noise_filter_px: float = 100.0  # A < this: ignored
     landmark_px: float = 400.0  # A >= this: a landmark of interest
     verify_distance_m: float = 1.0
-    # --- SOP (SPEC 8) -------------------------------------------------------------------
+    # --- SOP (docs/design.md §7) ------------------------------------------------------------------
     n_loi: int = 15
     n_viewpoints: int = 5
     # Viewpoints keep this clearance (metres) from their landmark's footprint: close
     # enough to verify targets on it (1 m), far enough for the robot radius.
     viewpoint_min_m: float = 0.3
     viewpoint_max_m: float = 0.8
-    # --- exploration (SPEC 6) -----------------------------------------------------------
+    # --- exploration (docs/design.md §5) ----------------------------------------------------------
     max_frontier_clusters: int = 32
 
     # Derived shapes ------------------------------------------------------------------------

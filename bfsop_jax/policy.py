@@ -1,6 +1,6 @@
 """The Strategic Transformer as an SOP planner: ``StrategicPolicy.load(dir).plan(instance)``.
 
-Inference (SPEC 9.4): one jitted program runs the encoder, greedy decoding, the bounded
+Inference (docs/design.md §8.4): one jitted program runs the encoder, greedy decoding, the bounded
 SOP 2-opt (:func:`bfsop_jax.sop.two_opt`, at most 100 reversals) and the budget gate
 (:func:`bfsop_jax.sop.budget_gate`), for one instance or a batch. Instances smaller than
 the model's capacity (N nodes, K sets, from the run's ``config.json``) are padded with
@@ -31,21 +31,19 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from bfsop_jax import checkpoint as ckpt
 from bfsop_jax.model.decode import DecodeTrace, decode
 from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.sop.two_opt import budget_gate, insertion_fill
 from bfsop_jax.sop.two_opt import two_opt as sop_two_opt
-from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
-from bfsop_jax.training import checkpoint as ckpt
-from bfsop_jax.training.bc import init_states
-from bfsop_jax.training.config import Replica, TrainConfig
+from bfsop_jax.sop.types import Solution, SOPInstance, plan_length, validate
 
 __all__ = ["DEMO_POLICY_DIR", "TWO_OPT_ITERS", "StrategicPolicy"]
 
 # The pretrained demo model shipped with the package (config.json + model/).
 DEMO_POLICY_DIR = Path(__file__).resolve().parent / "assets" / "policy_demo"
-TWO_OPT_ITERS = 100  # bounded 2-opt (SPEC 8.5)
+TWO_OPT_ITERS = 100  # bounded 2-opt (docs/design.md §7.5)
 
 
 class StrategicPolicy:
@@ -105,7 +103,11 @@ class StrategicPolicy:
         if checkpoint == "model":
             params = ckpt.load_model(run_dir, target)
         else:
-            params = _latest_params(run_dir, config, model_config, target)
+            # an unfinished training run: read its last epoch checkpoint (the one place
+            # inference needs the training state's layout)
+            from bfsop_jax.training.bc import latest_best_params
+
+            params = latest_best_params(run_dir, config, model_config)
         return cls(nnx.merge(graphdef, params), num_nodes, num_sets)
 
     @property
@@ -215,11 +217,10 @@ class StrategicPolicy:
 
     # -- internals -----------------------------------------------------------------------
     def _prepare(self, instance: SOPInstance) -> tuple[SOPInstance, bool, int]:
-        inst = _as_numpy(instance)
+        inst = validate(instance, max_batch_dims=1)  # NumPy leaves
         single = inst.set_id.ndim == 1
         if single:
             inst = jax.tree_util.tree_map(lambda x: x[None], inst)
-        _check_batch(inst)
         n, k = inst.set_id.shape[1], inst.set_reward.shape[1]
         if n > self.num_nodes or k > self.num_sets:
             raise ValueError(
@@ -278,67 +279,6 @@ def _plan_program(
     if fill:
         sol = insertion_fill(every, sol)
     return _best(sol, draws * views, b)
-
-
-def _latest_params(
-    run_dir: Path, config: dict[str, Any], model_config: ModelConfig, target: Any
-) -> Any:
-    """Parameters of the best replica in the last epoch checkpoint of a run."""
-    replicas = config.get("replicas") or []
-    if not replicas:
-        raise ValueError(f"{run_dir / ckpt.CONFIG_FILE} lists no replicas")
-    train_config = TrainConfig.from_dict(config["run"]["train"])
-    members = [Replica.from_dict(r, train_config) for r in replicas]
-    states = jax.eval_shape(lambda: init_states(model_config, train_config, replicas=members)[1])
-    with ckpt.CheckpointStore(run_dir, read_only=True) as store:
-        if store.latest_epoch() is None:
-            raise ValueError(f"no checkpoint in {run_dir} (neither model/ nor an epoch checkpoint)")
-        state, meta = store.restore(states)
-    best = int(meta.get("best_replica", 0))
-    return jax.tree_util.tree_map(lambda x: x[best], state.params)
-
-
-def _as_numpy(instance: SOPInstance) -> SOPInstance:
-    if not isinstance(instance, SOPInstance):
-        raise ValueError(f"plan needs an SOPInstance, got {type(instance).__name__}")
-    inst = instance.to_numpy()
-    if inst.set_id.ndim not in (1, 2):
-        raise ValueError(f"set_id must be [N] or [B, N], got shape {inst.set_id.shape}")
-    return inst
-
-
-def _check_batch(inst: SOPInstance) -> None:
-    """Vectorised checks of a batch [B] of instances (shapes and values)."""
-    b, n = inst.set_id.shape
-    k = inst.set_reward.shape[-1] if inst.set_reward.ndim == 2 else -1
-    shapes = {
-        "cost": (b, n, n),
-        "set_reward": (b, k),
-        "start": (b,),
-        "end": (b,),
-        "budget": (b,),
-        "coords": (b, n, 2),
-    }
-    for name, shape in shapes.items():
-        if np.shape(getattr(inst, name)) != shape:
-            raise ValueError(f"{name} must have shape {shape}, got {np.shape(getattr(inst, name))}")
-    if b == 0 or n == 0 or k < 1:
-        raise ValueError(f"empty instance batch (B={b}, N={n}, K={k})")
-    if np.isnan(inst.cost).any() or (inst.cost < 0).any():
-        raise ValueError("cost contains NaN or negative entries")
-    if np.isnan(inst.budget).any() or (inst.budget < 0).any():
-        raise ValueError("budget is NaN or negative")
-    if not np.isfinite(inst.set_reward).all() or (inst.set_reward < 0).any():
-        raise ValueError("set_reward contains NaN, inf or negative entries")
-    if not np.isfinite(inst.coords).all():
-        raise ValueError("coords contain NaN or inf")
-    if ((inst.set_id < -1) | (inst.set_id >= k)).any():
-        raise ValueError(f"set_id outside [-1, {k})")
-    start = inst.start.astype(np.int64)
-    if ((start < 0) | (start >= n)).any() or (inst.set_id[np.arange(b), start % n] < 0).any():
-        raise ValueError("start must be a non-padding node")
-    if ((inst.end < -1) | (inst.end >= n)).any():
-        raise ValueError(f"end must be -1 or a node in [0, {n})")
 
 
 def _pad(inst: SOPInstance, num_nodes: int, num_sets: int, xp: Any = np) -> SOPInstance:

@@ -48,6 +48,7 @@ from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training import RunConfig, train
 from bfsop_jax.training.bc import evaluate_imitation
+from bfsop_jax.viz import plot_distance_mass, plot_tour_comparison
 
 
 @dataclasses.dataclass(frozen=True)
@@ -303,14 +304,15 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     instances, owners = pose_tasks(seeds, cfg, progress=not args.no_progress)
     n = int(owners.shape[0])
     print(f"evaluation: {n} instances from houses {lo}..{hi - 1}")
-    result = solver_eval.evaluate_solvers(policy, instances, progress=not args.no_progress)
+    evaluation = solver_eval.evaluate_solvers(policy, instances, progress=not args.no_progress)
+    result = evaluation.summary
     result["house_seeds"] = [int(lo), int(hi)]
     result["checkpoint"] = str(checkpoint)
     result["machine"] = f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.default_backend()}"
     result["date"] = time.strftime("%Y-%m-%d")
     ablation_rows = None
     if ablations:
-        teacher = result["_teacher"]
+        teacher = evaluation.teacher
         ablation_rows = {}
         for name, info in ablations.items():
             pol = (
@@ -322,12 +324,12 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
                 pol, instances, planners={"transformer+2opt": {"two_opt": True}},
                 progress=False, teacher=teacher,
             )  # fmt: skip
-            row = sub["planners"]["transformer+2opt"]
+            row = sub.summary["planners"]["transformer+2opt"]
             ablation_rows[name] = {**info, **{k: row[k] for k in ("mean_reward", "mean_cost",
                                                                  "reward_ratio")}}  # fmt: skip
         result["ablations"] = ablation_rows
     out.mkdir(parents=True, exist_ok=True)
-    _figures(policy, instances, result, out)
+    _figures(policy, instances, evaluation, out)
     solver_eval.write_json(result, out / "solver_eval.json")
     header = (
         f"# Distillation results ({args.preset})\n\nHeld-out houses {lo}..{hi - 1}, "
@@ -370,12 +372,14 @@ def stage_navigation(args, preset: DistillPreset, out: Path, policy, checkpoint:
     return {"episodes": len(episodes), "methods": result["methods"]}
 
 
-def _figures(policy, instances, result: dict, out: Path) -> None:
-    """The tour comparison and the distance-mass figures (the mass is added to ``result``)."""
+def _figures(policy, instances, evaluation, out: Path) -> None:
+    """The tour comparison and the distance-mass figures (the mass is added to the
+    evaluation's summary)."""
     from bfsop_jax.sop import evaluate
 
-    vns_plans = [s.node_list() for s in result["_teacher"][0]]
-    model_plans = result["_plans"]["transformer+2opt"]
+    result = evaluation.summary
+    vns_plans = [s.node_list() for s in evaluation.teacher[0]]
+    model_plans = evaluation.plans["transformer+2opt"]
     # the instance where the teacher visits the most sets (a readable, non-trivial tour)
     i = int(np.argmax([len(p) for p in vns_plans]))
     inst = solver_eval.take(instances, i)
@@ -386,10 +390,10 @@ def _figures(policy, instances, result: dict, out: Path) -> None:
     ):
         reward, cost, _ = evaluate(inst, nodes)
         plans[name] = (nodes, float(reward), float(cost))  # fmt: skip
-    solver_eval.plot_tour_comparison(inst, plans, out / "tour_comparison.png")
+    plot_tour_comparison(inst, plans, out / "tour_comparison.png")
     mass = solver_eval.decoder_distance_mass(policy, instances)
     result["distance_mass"] = {"all_steps": mass[0].tolist(), "first_step": mass[1].tolist()}
-    solver_eval.plot_distance_mass(mass, out / "decoder_distance_mass.png")
+    plot_distance_mass(mass, out / "decoder_distance_mass.png")
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -409,7 +413,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         ablations = _trained_ablations(out if args.checkpoint is None else Path(args.checkpoint))
     if args.stage in ("all", "eval"):
         result = stage_eval(args, preset, out, ablations if args.ablations else None)
-        summary["solver_eval"] = {k: v for k, v in result.items() if not k.startswith("_")}
+        summary["solver_eval"] = result
     print(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}")
     return summary
 

@@ -201,7 +201,7 @@ def run_group(
         res = solver_eval.evaluate_solvers(
             policy, instances, planners={PLANNER: {"two_opt": True}}, progress=False,
             teacher=teacher,
-        )  # fmt: skip
+        ).summary  # fmt: skip
         row = res["planners"][PLANNER]
         last = rows.get(i, {})
         results[i] = {

@@ -11,6 +11,13 @@ import numpy as np
 import pytest
 
 from bfsop_jax.data import DataConfig, ShardStore, generate_dataset, merge_datasets
+from bfsop_jax.data.schema import (
+    DATASET_KEYS,
+    RECORD_FIELDS,
+    check_records,
+    field_shape,
+    make_records,
+)
 from bfsop_jax.sop.types import SOPInstance, evaluate, validate
 
 
@@ -48,6 +55,24 @@ def test_half_written_or_unlisted_shards_are_not_complete(tmp_path):
         ShardStore(tmp_path / "ds", {})
 
 
+def test_record_schema_types_and_checks():
+    d, n, k = 3, 5, 2
+    arrays = {f.name: np.zeros(field_shape(f, d, n, k), np.float64) for f in RECORD_FIELDS}
+    rec = make_records(arrays)
+    assert list(rec) == [f.name for f in RECORD_FIELDS]
+    assert all(rec[f.name].dtype == f.dtype for f in RECORD_FIELDS)
+    assert set(check_records(rec)) == set(DATASET_KEYS)
+    with pytest.raises(ValueError, match="house_seed"):
+        make_records({k: v for k, v in arrays.items() if k != "house_seed"})
+    assert "house_seed" not in make_records(
+        {k: v for k, v in arrays.items() if k != "house_seed"}, complete=False
+    )
+    with pytest.raises(ValueError, match=r"teacher_cost must have shape \(3,\)"):
+        check_records({**rec, "teacher_cost": np.zeros(4)})
+    with pytest.raises(ValueError, match="lacks the arrays"):
+        check_records({k: v for k, v in rec.items() if k != "budget"})
+
+
 def test_data_config_rejects_evaluation_seeds():
     with pytest.raises(ValueError, match="evaluation seeds"):
         DataConfig(seed_start=999_999, houses=5)
@@ -65,6 +90,10 @@ def test_generated_virtual_tasks_are_valid_and_labelled(tmp_path):
         data["budget"]
     )
     assert len(data["budget"]) >= 1
+    d, n, k = len(data["budget"]), data["set_id"].shape[1], data["set_reward"].shape[1]
+    for field in RECORD_FIELDS:  # every record field, typed and shaped by the table
+        assert data[field.name].dtype == field.dtype
+        assert data[field.name].shape == field_shape(field, d, n, k)
     for i in range(len(data["budget"])):
         inst = SOPInstance.create(
             data["cost"][i], data["set_id"][i], data["set_reward"][i], 0, -1,

@@ -179,7 +179,8 @@ def test_invalid_slots_are_never_visible():
 
 
 def test_interaction_threshold_option():
-    # The threshold 1000 * s px only binds once the noise filter is lowered (SPEC 4.3 note).
+    # The optional per-category threshold 1000 * s px (the paper's interaction threshold)
+    # only binds once the noise filter is lowered.
     low = dataclasses.replace(ROOM, noise_filter_px=10.0)
     house = make_house(empty(), [{"cat": APPLE, "xy": (3.95, 3.0), "size": 0.04}])  # 39.9 px
     det = observe(house, pose(3.0, 3.0), low)

@@ -16,6 +16,7 @@ from bfsop_jax.model import ModelConfig, StrategicTransformer
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.sop import evaluate, solve_vns
 from bfsop_jax.sop.io import random_instance
+from bfsop_jax.viz import plot_distance_mass
 
 
 @pytest.fixture(scope="module")
@@ -36,10 +37,11 @@ def batch():
 
 def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
     planners = {"transformer": {"two_opt": False}, "transformer+2opt": {"two_opt": True}}
-    result = solver_eval.evaluate_solvers(
+    evaluation = solver_eval.evaluate_solvers(
         policy, batch, vns_kwargs={"max_iters": 100, "max_no_improve": 50},
         planners=planners, batch_size=4, repeats=1, progress=False,
     )  # fmt: skip
+    result = evaluation.summary
     assert result["instances"] == 6
     p = result["planners"]
     assert set(p) == {"vns", "greedy_insertion", *planners}
@@ -53,7 +55,7 @@ def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
         assert row["batch_size"] == 4
         # the recorded plans are feasible and give the reported means
         rewards = []
-        for i, nodes in enumerate(result["_plans"][name]):
+        for i, nodes in enumerate(evaluation.plans[name]):
             r, c, ok = evaluate(solver_eval.take(batch, i), nodes[nodes >= 0])
             assert ok
             rewards.append(r)
@@ -65,7 +67,8 @@ def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
 
     solver_eval.write_json(result, tmp_path / "solver_eval.json")
     saved = json.loads((tmp_path / "solver_eval.json").read_text())
-    assert "_plans" not in saved and saved["planners"]["vns"]["mean_reward"] > 0
+    assert saved == json.loads(json.dumps(result)) and saved["planners"]["vns"]["mean_reward"] > 0
+    assert len(evaluation.teacher[0]) == 6  # the VNS plans, reusable by other models
     text = solver_eval.write_tables(result, tmp_path / "tables.md")
     assert "Table II" in text and "Table III" in text and "VNS teacher" in text
     assert (tmp_path / "tables.md").read_text() == text
@@ -76,7 +79,7 @@ def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
     assert mass.shape == (2, 5)
     np.testing.assert_allclose(mass.sum(axis=1), 1.0, atol=1e-5)
     assert (mass >= 0).all()
-    solver_eval.plot_distance_mass(mass, tmp_path / "mass.png")
+    plot_distance_mass(mass, tmp_path / "mass.png")
     assert (tmp_path / "mass.png").stat().st_size > 0
 
 

@@ -1,4 +1,4 @@
-"""SOP instances built from the online map (SPEC 8.1)."""
+"""SOP instances built from the online map (docs/design.md §7.1)."""
 
 from __future__ import annotations
 

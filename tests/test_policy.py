@@ -10,13 +10,13 @@ import pytest
 from flax import nnx
 
 import bfsop_jax.policy as policy_module
+from bfsop_jax.checkpoint import CheckpointStore, save_model, write_config
 from bfsop_jax.model import ModelConfig, StrategicTransformer
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.sop import SOPInstance, evaluate, plan_length
 from bfsop_jax.sop.io import random_instance
 from bfsop_jax.training import RunConfig, TrainConfig
 from bfsop_jax.training.bc import init_states
-from bfsop_jax.training.checkpoint import CheckpointStore, save_model, write_config
 
 CONFIG = ModelConfig(d_model=32, n_layers=1, n_heads=2, d_ff=64)
 NODES, SETS = 25, 9  # model capacity; test instances have 19 nodes and 7 sets

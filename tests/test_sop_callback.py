@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from bfsop_jax.sop import plan_length, solve_vns, solve_vns_batch, vns_callback
+from bfsop_jax.sop.callback import vns_masked_callback
 from bfsop_jax.sop.io import random_instance
+from bfsop_jax.sop.vns import VNSConfig
 
 SMALL = dict(max_iters=30, max_no_improve=15)
 
@@ -52,3 +54,24 @@ def test_jitted_callback_matches_solve_vns():
 def test_unbatched_input_is_rejected():
     with pytest.raises(ValueError, match="batch"):
         solve_vns_batch(random_instance(0), [0])
+
+
+def test_config_equals_old_keywords():
+    insts, batch = _batch(2)
+    seeds = np.array([3, 8])
+    old = solve_vns_batch(batch, seeds, processes=1, **SMALL)
+    new = solve_vns_batch(batch, seeds, processes=1, config=VNSConfig(**SMALL))
+    np.testing.assert_array_equal(new.nodes, old.nodes)
+    np.testing.assert_array_equal(new.cost, old.cost)
+
+
+def test_masked_callback_takes_a_config():
+    insts, batch = _batch(2)
+    mask = jnp.array([False, True])
+    plan = jax.vmap(lambda i, m: vns_masked_callback(i, m, 4, config=VNSConfig(**SMALL)))
+    sol = plan(jax.tree_util.tree_map(jnp.asarray, batch), mask)
+    ref = solve_vns(insts[1], seed=4, **SMALL).padded(plan_length(7))
+    np.testing.assert_array_equal(np.asarray(sol.nodes[1]), ref.nodes)
+    assert int(sol.nodes[0, 0]) == int(insts[0].start)
+    assert (np.asarray(sol.nodes[0, 1:]) == -1).all()
+    assert float(sol.reward[0]) == 0.0

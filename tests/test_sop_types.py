@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -116,3 +118,84 @@ def test_random_instance_shapes_and_masking():
     assert inst.set_reward[-2:].sum() == 0
     assert int(inst.end) == -1 and int(inst.start) == 0
     assert int(random_instance(0, closed=True).end) == 0
+
+
+# -- one validator for single and batched instances -----------------------------------------
+_BAD_VALUES = [
+    dict(cost=np.full((4, 4), np.nan)),
+    dict(cost=-np.ones((4, 4))),
+    dict(budget=-1.0),
+    dict(budget=float("nan")),
+    dict(set_id=np.array([0, 1, 1, 5])),
+    dict(set_id=np.array([0, 1, 1, -2])),
+    dict(set_reward=np.array([0.0, -1.0, 2.0])),
+    dict(set_reward=np.array([1.0, 1.0, 2.0])),
+    dict(set_id=np.array([-1, 1, 1, 2])),
+    dict(set_id=np.array([1, 1, 1, 2])),
+    dict(start=7),
+    dict(end=2),
+    dict(end=9),
+    dict(coords=np.full((4, 2), np.inf)),
+]
+
+
+def _unchecked(**overrides) -> SOPInstance:
+    """:func:`_line_instance` without validation (NumPy leaves, SOPInstance dtypes)."""
+    good = _line_instance()
+    inst = good.replace(**{k: np.asarray(v, getattr(good, k).dtype) for k, v in overrides.items()})
+    return inst
+
+
+def _stack(items: list[SOPInstance]) -> SOPInstance:
+    return SOPInstance(**{k: np.stack([vars(i)[k] for i in items]) for k in vars(items[0])})
+
+
+@pytest.mark.parametrize("overrides", _BAD_VALUES)
+def test_batched_validation_gives_the_single_message(overrides):
+    bad, good = _unchecked(**overrides), _line_instance()
+    with pytest.raises(ValueError) as single:
+        validate(bad)
+    message = str(single.value)
+    with pytest.raises(ValueError) as batched:
+        validate(_stack([good, bad, bad]))
+    assert str(batched.value) == f"batch element (1,): {message}"
+    two_d = _stack([_stack([good, good]), _stack([good, bad])])  # batch shape (2, 2)
+    with pytest.raises(ValueError) as nested:
+        validate(two_d)
+    assert str(nested.value) == f"batch element (1, 1): {message}"
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [(dict(cost=np.zeros((3, 3))), "cost must be"), (dict(coords=np.zeros((4, 3))), "coords")],
+)
+def test_shape_errors_single_and_batched(overrides, message):
+    bad = _line_instance().replace(**overrides)
+    for inst in (bad, _stack([bad, bad])):
+        with pytest.raises(ValueError, match=message):
+            validate(inst)
+
+
+def test_validate_returns_numpy_and_limits_batch_axes():
+    good = _line_instance()
+    batch = _stack([good, good])
+    checked = validate(jax.tree_util.tree_map(jnp.asarray, batch), max_batch_dims=1)
+    assert isinstance(checked.cost, np.ndarray) and checked.cost.shape == (2, 4, 4)
+    with pytest.raises(ValueError, match="at most 0 leading batch axes"):
+        validate(batch, max_batch_dims=0)
+    with pytest.raises(ValueError, match="empty instance batch"):
+        validate(jax.tree_util.tree_map(lambda x: x[:0], batch))
+    with pytest.raises(ValueError, match="batch shape"):
+        validate(batch.replace(budget=np.float32(1.0)))
+    with pytest.raises(ValueError, match="SOPInstance"):
+        validate({"cost": good.cost})
+
+
+def test_random_batches_validate_like_their_elements():
+    insts = [random_instance(s, num_sets=6, viewpoints=3, masked_sets=s % 3) for s in range(6)]
+    batch = _stack(insts)
+    validate(batch)
+    bad = batch.set_reward.copy()
+    bad[4, 0] = 1.0  # the start set gets a reward
+    with pytest.raises(ValueError, match=r"batch element \(4,\): the start set 0 must have"):
+        validate(batch.replace(set_reward=bad))

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import pickle
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -9,6 +12,7 @@ from hypothesis import given
 from bfsop_jax.sop import SOPInstance, solve_exact, solve_greedy, solve_vns
 from bfsop_jax.sop import vns as V
 from bfsop_jax.sop.io import random_instance
+from bfsop_jax.sop.vns import DEMO_LABELLING, REFERENCE, VNSConfig
 from tests.test_sop_exact import SETTINGS, assert_valid_plan, small_instances
 
 QUICK = dict(max_iters=40, max_no_improve=20)
@@ -159,3 +163,60 @@ def test_recreate_recovers_a_benchmark_optimum(shared):
     inst = read_sop(shared("sop", "instances", "20kroD100_RND_T20_p2.sop"))
     assert float(solve_vns(inst, seed=0, recreate=False).reward) < 2180
     assert float(solve_vns(inst, seed=0).reward) == 2180
+
+
+def test_config_defaults_are_the_reference_configuration():
+    assert VNSConfig() == REFERENCE
+    assert REFERENCE.max_iters == 2000 and REFERENCE.max_no_improve == 1000
+    assert REFERENCE.time_limit is None and REFERENCE.width is None
+    assert (REFERENCE.trades, REFERENCE.reversals, REFERENCE.recreate) == (False, True, True)
+    assert REFERENCE.squeeze == 0.3 and REFERENCE.squeeze_tries == 3
+    assert DEMO_LABELLING == VNSConfig(max_iters=500, max_no_improve=250)
+    assert VNSConfig.labelling(50, 25, trades=True) == VNSConfig(50, 25, trades=True)
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("max_iters", -1),
+        ("max_iters", 1.5),
+        ("max_no_improve", True),
+        ("squeeze_tries", -2),
+        ("width", 0),
+        ("time_limit", -1.0),
+        ("squeeze", -0.1),
+        ("squeeze", float("nan")),
+        ("trades", 1),
+        ("recreate", None),
+    ],
+)
+def test_config_rejects_invalid_fields(field, value):
+    with pytest.raises(ValueError, match=rf"VNSConfig\.{field} "):
+        VNSConfig(**{field: value})
+
+
+def test_config_is_hashable_picklable_and_round_trips():
+    cfg = VNSConfig(max_iters=np.int64(300), width=8, time_limit=2, squeeze=0)
+    assert type(cfg.max_iters) is int and cfg.time_limit == 2.0 and cfg.squeeze == 0.0
+    assert hash(cfg) == hash(VNSConfig(max_iters=300, width=8, time_limit=2.0, squeeze=0.0))
+    assert pickle.loads(pickle.dumps(cfg)) == cfg
+    assert VNSConfig.from_dict(cfg.to_dict()) == cfg
+    assert cfg.to_dict() == dataclasses.asdict(cfg)
+    with pytest.raises(ValueError, match="unknown VNSConfig field"):
+        VNSConfig.from_dict({"max_iter": 3})
+    assert cfg.replace(trades=True) == dataclasses.replace(cfg, trades=True)
+
+
+def test_config_and_old_keywords_agree():
+    inst = random_instance(4, num_sets=10)
+    kw = dict(max_iters=120, max_no_improve=60, reversals=False)
+    old = solve_vns(inst, seed=2, **kw)
+    new = solve_vns(inst, seed=2, config=VNSConfig(**kw))
+    as_dict = solve_vns(inst, 2, VNSConfig(**kw).to_dict())
+    # loose keywords override the config's fields
+    mixed = solve_vns(inst, seed=2, config=VNSConfig(max_iters=7, reversals=False), **QUICK | kw)
+    for sol in (new, as_dict, mixed):
+        np.testing.assert_array_equal(sol.nodes, old.nodes)
+        assert sol.cost == old.cost
+    with pytest.raises(TypeError, match="max_iter"):
+        solve_vns(inst, max_iter=3)

@@ -9,6 +9,7 @@ import jax
 import numpy as np
 import pytest
 
+from bfsop_jax.checkpoint import CheckpointStore
 from bfsop_jax.model import ModelConfig
 from bfsop_jax.sop import solve_vns
 from bfsop_jax.sop.io import random_instance
@@ -21,7 +22,6 @@ from bfsop_jax.training import (
     train,
 )
 from bfsop_jax.training.bc import init_states, make_evaluate, make_train_epoch
-from bfsop_jax.training.checkpoint import CheckpointStore
 
 TINY = ModelConfig(d_model=32, n_layers=2, n_heads=2, d_ff=64)
 RECIPE = TrainConfig(epochs=4, batch_size=16, decay_every=2)

@@ -85,6 +85,14 @@ def greedy_estimate(
     budget [] metres. Returns ``(reward, cost)`` of the plan (cost in metres). Each round
     inserts the point with the best reward per added metre at its cheapest position,
     while the plan fits the budget.
+
+    This is an *estimate* of a tour's value for the strategy switcher, kept apart from
+    :func:`bfsop_jax.sop.insertion_fill` (which fills a plan of an SOP instance): one point
+    per landmark instead of sets of viewpoints, no end node, distances from whole 1/64 m
+    coordinates (exact integer squares, so a batched and a single call give the same bits)
+    instead of a cost matrix, a fixed ``L`` rounds (``fori_loop``), and the ratio
+    reward / max(added, 1e-3) maximised over candidates at their cheapest position, ties
+    going to the lowest landmark index.
     """
     n = xy.shape[0]
     pts = jnp.concatenate([start[None], xy], axis=0)

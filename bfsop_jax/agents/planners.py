@@ -19,6 +19,7 @@ import jax.numpy as jnp
 
 from bfsop_jax.sop.callback import vns_masked_callback
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
+from bfsop_jax.sop.vns import REFERENCE, VNSConfig
 
 __all__ = ["NearestNeighbourPlanner", "TransformerPlanner", "VNSPlanner", "nearest_neighbour_plan"]
 
@@ -70,20 +71,28 @@ class NearestNeighbourPlanner:
 
 @dataclasses.dataclass(frozen=True)
 class VNSPlanner:
-    """The VNS teacher through the masked host callback (solves only rows that ask)."""
+    """The VNS teacher through the masked host callback (solves only rows that ask).
+
+    ``config`` holds the VNS options (:class:`~bfsop_jax.sop.vns.VNSConfig`, default the
+    reference configuration). The old keywords ``max_iters`` / ``max_no_improve`` are still
+    accepted (None: keep ``config``'s value); they are folded into ``config`` on
+    construction, so ``VNSPlanner(0, max_iters=100)`` equals
+    ``VNSPlanner(0, config=VNSConfig(max_iters=100))`` (same hash, same ``jit`` cache).
+    """
 
     seed: int = 0
-    max_iters: int | None = None  # VNS iterations (None: the solver's default)
-    max_no_improve: int | None = None  # stop after this many iterations without a gain
+    config: VNSConfig = REFERENCE
     name: str = "vns"
+    max_iters: dataclasses.InitVar[int | None] = None  # old keyword: overrides config
+    max_no_improve: dataclasses.InitVar[int | None] = None  # old keyword: overrides config
+
+    def __post_init__(self, max_iters: int | None, max_no_improve: int | None) -> None:
+        overrides = {"max_iters": max_iters, "max_no_improve": max_no_improve}
+        overrides = {k: v for k, v in overrides.items() if v is not None}
+        object.__setattr__(self, "config", VNSConfig.resolve(self.config, **overrides))
 
     def __call__(self, mask: jax.Array, instance: SOPInstance) -> Solution:
-        kwargs: dict[str, Any] = {}
-        if self.max_iters is not None:
-            kwargs["max_iters"] = self.max_iters
-        if self.max_no_improve is not None:
-            kwargs["max_no_improve"] = self.max_no_improve
-        return vns_masked_callback(instance, mask, self.seed, **kwargs)
+        return vns_masked_callback(instance, mask, self.seed, config=self.config)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

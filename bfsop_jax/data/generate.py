@@ -1,6 +1,6 @@
-"""Teacher-labelled SOP datasets from training houses (SPEC 9.2).
+"""Teacher-labelled SOP datasets from training houses (docs/design.md §8.2).
 
-Two sources (SPEC 9.2): *on-trajectory* decisions, i.e. every switch to exploitation of
+Two sources (docs/design.md §8.2): *on-trajectory* decisions, i.e. every switch to exploitation of
 a BF-SOP agent planning with the VNS teacher, and *retrospective virtual tasks* (the
 paper's teacher-student symmetry): an exploration run in a training house leaves a
 *partial* belief map and the receptacles seen on the way.
@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from bfsop_jax.agents import BFSOP, FBE, VNSPlanner, max_macro_steps, rollout
 from bfsop_jax.config import EVAL_SEED_START, Preset, get_preset
+from bfsop_jax.data.schema import make_records
 from bfsop_jax.data.shards import ShardStore
 from bfsop_jax.env import observe, reset
 from bfsop_jax.env.types import EnvState
@@ -39,6 +40,7 @@ from bfsop_jax.sensing.mapping import known_free
 from bfsop_jax.sop.builder import build_instance
 from bfsop_jax.sop.callback import vns_callback
 from bfsop_jax.sop.types import Solution, SOPInstance
+from bfsop_jax.sop.vns import VNSConfig
 from bfsop_jax.world.constants import N_TARGETS
 from bfsop_jax.world.generator import generate_house
 from bfsop_jax.world.prior import default_prior
@@ -70,7 +72,7 @@ class DataConfig:
     explore_budget: tuple[float, float] = (0.3, 1.0)  # fraction of B spent exploring
     task_budget: tuple[float, float] = (0.1, 0.6)  # remaining budget of a task, fraction of B
     keep_landmark: float = 0.8  # chance that a seen landmark is pending in a task
-    vns_iters: int = 2000
+    vns_iters: int = 2000  # the labelling VNS run (see vns_config)
     vns_no_improve: int = 1000
     on_trajectory: bool = True  # also record the decisions of a BF-SOP (VNS) episode per house
 
@@ -86,6 +88,12 @@ class DataConfig:
     @property
     def n_shards(self) -> int:
         return math.ceil(self.houses / self.houses_per_shard)
+
+    @property
+    def vns_config(self) -> VNSConfig:
+        """How the teacher labels this dataset: the reference VNS options with
+        ``vns_iters`` iterations and ``vns_no_improve`` iterations without improvement."""
+        return VNSConfig.labelling(self.vns_iters, self.vns_no_improve)
 
 
 def explore(
@@ -151,9 +159,7 @@ def label_virtual_tasks(
 ) -> tuple[SOPInstance, jax.Array, Solution]:
     """Pose virtual tasks on one final map and label them with the VNS host callback."""
     instances, categories = virtual_tasks(key, state, seeds.shape[0], preset, config)
-    labels = vns_callback(
-        instances, seeds, max_iters=config.vns_iters, max_no_improve=config.vns_no_improve
-    )
+    labels = vns_callback(instances, seeds, config=config.vns_config)
     return instances, categories, labels
 
 
@@ -173,7 +179,7 @@ def on_trajectory_decisions(
     """  # fmt: skip
     n_steps = max_macro_steps(preset.budget_m, preset)
     state = reset(key, house, category, preset, prior)
-    planner = VNSPlanner(seed=0, max_iters=config.vns_iters, max_no_improve=config.vns_no_improve)
+    planner = VNSPlanner(seed=0, config=config.vns_config)
     _, traj = rollout(state, BFSOP(planner=planner, record=True), preset, n_steps)
     instances, plans = traj.record
     return instances, plans, traj.planned
@@ -194,23 +200,30 @@ def _present_category(houses, j: int, key: jax.Array) -> int:
 
 
 def _records(instances, categories, labels, house_seeds, source) -> dict[str, np.ndarray]:
+    """Dataset records (:data:`bfsop_jax.data.schema.RECORD_FIELDS`) of a batch [B].
+
+    ``instances`` [B] and their teacher ``labels`` [B], ``categories`` [B], ``house_seeds``
+    [B], ``source`` (one constant); instances without any rewarding set are dropped.
+    """
     inst = jax.device_get(instances)
     lab = jax.device_get(labels)
     useful = (np.asarray(inst.set_reward) > 0).any(axis=-1)  # something to plan for
-    rec = {
-        "coords": inst.coords,
-        "cost": inst.cost,
-        "set_id": inst.set_id,
-        "set_reward": inst.set_reward,
-        "budget": inst.budget,
-        "teacher_nodes": lab.nodes,
-        "teacher_reward": lab.reward,
-        "teacher_cost": lab.cost,
-        "house_seed": np.asarray(house_seeds, np.int64),
-        "category": np.asarray(categories, np.int32),
-        "source": np.full(len(useful), source, np.int32),
-    }
-    return {k: np.asarray(v)[useful] for k, v in rec.items()}
+    rec = make_records(
+        {
+            "coords": inst.coords,
+            "cost": inst.cost,
+            "set_id": inst.set_id,
+            "set_reward": inst.set_reward,
+            "budget": inst.budget,
+            "teacher_nodes": lab.nodes,
+            "teacher_reward": lab.reward,
+            "teacher_cost": lab.cost,
+            "house_seed": house_seeds,
+            "category": categories,
+            "source": np.full(len(useful), source),
+        }
+    )  # typed by the record table (bfsop_jax.data.schema)
+    return {k: v[useful] for k, v in rec.items()}
 
 
 def _explored(seeds, preset: Preset, config: DataConfig, prior, gen, run):
@@ -317,6 +330,8 @@ def generate_dataset(
                 )
             bar.update(1)
         arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        store.write(s, arrays, {"house_seeds": [int(seeds[0]), int(seeds[-1])]})
+        info = {"house_seeds": [int(seeds[0]), int(seeds[-1])]}
+        info["vns_config"] = config.vns_config.to_dict()  # how the teacher labelled the shard
+        store.write(s, arrays, info)
     bar.close()
     return store

@@ -1,4 +1,4 @@
-"""Versioned, resumable array shards on disk (SPEC 9.2, 14).
+"""Versioned, resumable array shards on disk (docs/design.md §8.2, §12).
 
 A dataset directory holds ``meta.json`` and ``shard-00000.npz``, ``shard-00001.npz``, ...
 Every shard is written to a temporary file and renamed into place, and ``meta.json`` is

@@ -1,4 +1,5 @@
-"""Solver evaluation: the distilled planner against the VNS teacher (SPEC 11, Tables II/III).
+"""Solver evaluation: the distilled planner against the VNS teacher (Tables II/III;
+docs/design.md §9).
 
 Every planner plans the same held-out instances in one run, so the ratios are measured
 side by side:
@@ -23,6 +24,7 @@ each quintile is averaged over all steps, and over the first step alone.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import statistics
@@ -35,9 +37,11 @@ import numpy as np
 from tqdm import tqdm
 
 from bfsop_jax.sop import Solution, SOPInstance, solve_greedy, solve_vns
+from bfsop_jax.viz import plot_distance_mass, plot_tour_comparison  # re-exported: drawn in viz
 
 __all__ = [
     "PLANNERS",
+    "SolverEvaluation",
     "decoder_distance_mass",
     "evaluate_solvers",
     "evaluate_teacher",
@@ -144,7 +148,7 @@ def evaluate_solvers(
     repeats: int = 3,
     progress: bool = True,
     teacher: tuple[list[Solution], list[float]] | None = None,
-) -> dict[str, Any]:
+) -> SolverEvaluation:
     """Plan every instance with the teacher, the greedy baseline and each planner.
 
     Args:
@@ -211,17 +215,23 @@ def evaluate_solvers(
             "latency_overhead_ms_single": on["latency_ms_single"] - off["latency_ms_single"],
             "latency_overhead_ms_batched": on["latency_ms_batched"] - off["latency_ms_batched"],
         }
-    result["_plans"] = plans  # for figures; dropped by write_json
-    result["_teacher"] = teacher  # (VNS solutions, ms): reusable for other models
-    return result
+    return SolverEvaluation(summary=result, teacher=teacher, plans=plans)
+
+
+@dataclasses.dataclass
+class SolverEvaluation:
+    """What :func:`evaluate_solvers` returns."""
+
+    summary: dict[str, Any]  # the ``solver_eval.json`` content (JSON-able)
+    teacher: tuple[list[Solution], list[float]]  # VNS plans and ms: reusable for other models
+    plans: dict[str, list[np.ndarray]]  # planner -> [T] node ids per instance (figures)
 
 
 def write_json(result: dict[str, Any], path: str | os.PathLike) -> None:
-    """Write the public part of an evaluation result atomically."""
-    public = {k: v for k, v in result.items() if not k.startswith("_")}
+    """Write an evaluation summary (``SolverEvaluation.summary``) atomically."""
     path = Path(path)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(public, indent=1, sort_keys=True) + "\n")
+    tmp.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
     os.replace(tmp, path)
 
 
@@ -338,76 +348,3 @@ def decoder_distance_mass(policy, instances: SOPInstance, batch: int = 64) -> np
                     sums[1] += share
                     counts[1] += 1
     return sums / np.maximum(counts, 1)[:, None]
-
-
-def _save(fig, path: str | os.PathLike) -> None:
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    tmp = path.with_suffix(".tmp" + path.suffix)
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-
-
-def plot_distance_mass(mass: np.ndarray, path: str | os.PathLike) -> None:
-    """Bar chart of :func:`decoder_distance_mass` (uniform choice = 0.2 per quintile)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 3.6))
-    x = np.arange(5)
-    ax.bar(x - 0.2, mass[0], 0.4, label="all steps")
-    ax.bar(x + 0.2, mass[1], 0.4, label="first step (t = 0)")
-    ax.axhline(0.2, color="grey", ls=":", lw=1, label="uniform")
-    ax.set_xticks(x, ["Q1\n(nearest)", "Q2", "Q3", "Q4", "Q5\n(farthest)"])
-    ax.set(ylabel="decoder probability mass", title="Where the decoder looks: distance quintiles")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    _save(fig, path)
-
-
-def plot_tour_comparison(
-    instance: SOPInstance,
-    plans: dict[str, tuple[list[int], float, float]],
-    path: str | os.PathLike,
-) -> None:
-    """One panel per planner: nodes coloured by set, the start, the tour (straight lines
-    between the chosen viewpoints; the costs are geodesic), reward and cost in the title.
-
-    ``plans``: name -> (node ids, reward, cost).
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    xy = np.asarray(instance.coords)
-    set_id = np.asarray(instance.set_id)
-    reward = np.asarray(instance.set_reward)
-    start = int(instance.start)
-    real = set_id >= 0
-    fig, axes = plt.subplots(1, len(plans), figsize=(5.2 * len(plans), 4.6), squeeze=False)
-    cmap = plt.get_cmap("tab20")
-    for ax, (name, (nodes, r, c)) in zip(axes[0], plans.items(), strict=True):
-        for s in np.unique(set_id[real]):
-            pts = xy[(set_id == s) & real]
-            if s == set_id[start]:
-                continue
-            alpha = 0.9 if reward[s] > 0 else 0.25
-            ax.scatter(pts[:, 0], pts[:, 1], s=18 + 60 * reward[s] / max(reward.max(), 1e-9),
-                       color=cmap(int(s) % 20), alpha=alpha)  # fmt: skip
-        tour = xy[[n for n in nodes if n >= 0]]
-        ax.plot(tour[:, 0], tour[:, 1], "-", color="tab:blue", lw=1.6)
-        ax.scatter(tour[1:, 0], tour[1:, 1], s=60, facecolors="none", edgecolors="tab:blue")
-        ax.plot(*xy[start], "o", ms=10, mfc="white", mec="k", mew=2)
-        if len(tour) > 1:
-            ax.plot(*tour[-1], "x", ms=10, color="k", mew=2)
-        ax.set_title(f"{name}\nreward {r:.2f}, cost {c:.1f} m")
-        ax.set_aspect("equal")
-        ax.set(xlabel="x (m)", ylabel="y (m)")
-        ax.grid(alpha=0.2)
-    fig.tight_layout()
-    _save(fig, path)

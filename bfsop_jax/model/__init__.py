@@ -1,4 +1,7 @@
-"""The Strategic Transformer: features, the network (Flax NNX) and SOP decoding (SPEC 9.1)."""
+"""The Strategic Transformer: features, the network (Flax NNX) and SOP decoding.
+
+Design: docs/design.md §8.1.
+"""
 
 from bfsop_jax.model.decode import (
     DecodeTrace,

@@ -7,7 +7,7 @@ works on ``.sop`` files and hand-made instances of any scale:
   nodes and divided by the box's *larger* side, so they lie in ``[0, 1]`` and keep the
   aspect ratio (a corridor stays a corridor);
 * reward: the node's set reward divided by the largest set reward (0 if all are 0);
-* geometric bias (SPEC 9.1): ``b_ij = log(c^_ij + 1e-9)`` with
+* geometric bias (docs/design.md §8.1): ``b_ij = log(c^_ij + 1e-9)`` with
   ``c^ = c / max(max finite valid c, 1e-9)``; unreachable pairs (``inf``) get ``c^ = 1``,
   pairs with a padding node get ``c^ = 1`` too (they are masked in attention anyway);
 * remaining budget: divided by the same largest finite cost, clipped to

@@ -1,6 +1,6 @@
 """The Strategic Transformer (Flax NNX): a geometric-bias encoder and a pointer decoder.
 
-Encoder (SPEC 9.1): node features ``[x~, y~, r~, is_start]`` are projected to ``d``, then
+Encoder (docs/design.md §8.1): node features ``[x~, y~, r~, is_start]`` are projected to ``d``, then
 ``n_layers`` pre-LayerNorm blocks (``h += MHA(LN(h)); h += FF(LN(h))``, a final LN).
 Pre-LN keeps the residual path an identity at initialisation, which trains stably without
 a warm-up. Every head's attention logits get ``scale_h * b_ij`` added, ``b`` the log-cost
@@ -247,7 +247,7 @@ class PointerDecoder(nnx.Module):
 
 
 class StrategicTransformer(nnx.Module):
-    """Encoder with geometric attention bias plus the pointer decoder (SPEC 9.1)."""
+    """Encoder with geometric attention bias plus the pointer decoder (docs/design.md §8.1)."""
 
     def __init__(self, config: ModelConfig, *, rngs: nnx.Rngs):
         self.config = config

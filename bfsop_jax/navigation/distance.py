@@ -1,4 +1,4 @@
-"""Exact geodesic distance fields and matrices on the planning grid (SPEC 5, 8.1).
+"""Exact geodesic distance fields and matrices on the planning grid (docs/design.md §4, §7.1).
 
 The graph
 ---------

@@ -1,4 +1,5 @@
-"""Frontiers: known-free planning cells next to unknown space, and their clusters (SPEC 6).
+"""Frontiers: known-free planning cells next to unknown space, and their clusters
+(docs/design.md §5).
 
 Planning-cell states from the fine belief (f x f fine cells per planning cell,
 f = ``plan_factor``; "known" means ``|log-odds| > logodds_known``):

@@ -1,4 +1,4 @@
-"""The planning grid: a coarser, robot-inflated view of an occupancy map (SPEC 5).
+"""The planning grid: a coarser, robot-inflated view of an occupancy map (docs/design.md §4).
 
 The planning grid has cells of ``preset.plan_cell_size`` metres (``plan_factor`` fine
 0.1 m cells per side) and shape ``preset.plan_shape`` = (Hp, Wp). Row ``i`` is y and

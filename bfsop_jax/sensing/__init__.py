@@ -1,4 +1,4 @@
-"""Sensing: ray-cast occupancy mapping and the simulated detection model (SPEC 4)."""
+"""Sensing: ray-cast occupancy mapping and the simulated detection model (docs/design.md §3)."""
 
 from bfsop_jax.sensing.detection import (
     Detections,

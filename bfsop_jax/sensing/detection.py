@@ -1,4 +1,5 @@
-"""Simulated instance segmentation: which objects the camera sees, and how large (SPEC 4.2-4.3).
+"""Simulated instance segmentation: which objects the camera sees, and how large
+(docs/design.md §3.2-3.3).
 
 A pinhole camera ``image_width_px`` wide with focal length ``focal_px`` sees an object of
 size ``s`` metres at distance ``d`` as ``A = (focal_px * s / d) ** 2`` pixels when its centre
@@ -145,7 +146,7 @@ def _line_of_sight(
 
 
 def observe(house: House, pose: jax.Array, preset: Preset) -> Detections:
-    """Detect every object from ``pose`` (SPEC 4.2).
+    """Detect every object from ``pose`` (docs/design.md §3.2).
 
     Args:
       house: the true house (occupancy [H, W], M object slots).
@@ -204,7 +205,7 @@ def landmarks_of_interest(
       det: detections of one frame.
       house: the house the detections come from (object categories).
       prior: [N_CATEGORIES, N_TARGETS] float32 co-occurrence table P(target | landmark
-        category), estimated from training houses (SPEC 4.4).
+        category), estimated from training houses (docs/design.md §3.4).
       category: int32 scalar target category id (may be traced).
     """
     if tuple(prior.shape) != (N_CATEGORIES, N_TARGETS):
@@ -224,7 +225,7 @@ def verified_targets(
     preset: Preset,
     use_interaction_threshold: bool = False,
 ) -> jax.Array:
-    """[M] bool: instances of ``category`` verified in this frame (SPEC 4.3).
+    """[M] bool: instances of ``category`` verified in this frame (docs/design.md §3.3).
 
     An instance is verified when it is in view, within ``verify_distance_m`` and at least
     ``noise_filter_px`` large. With ``use_interaction_threshold`` (static) it must also

@@ -1,4 +1,4 @@
-"""Ray-cast occupancy mapping on the true grid (SPEC 4.1).
+"""Ray-cast occupancy mapping on the true grid (docs/design.md §3.1).
 
 The agent's range sensor casts ``preset.n_rays`` rays over a ``preset.fov_deg`` field of
 view centred on its heading, up to ``preset.sensor_range_m``. Cells a ray crosses before its
@@ -99,7 +99,7 @@ class Rays:
 
 @struct.dataclass
 class ScanCells:
-    """The per-scan cell sets of SPEC 4.1 (see the module docstring)."""
+    """The per-scan cell sets of docs/design.md §3.1 (see the module docstring)."""
 
     free: jax.Array  # [H, W] bool: seen free and not seen occupied (gets logodds_free)
     occupied: jax.Array  # [H, W] bool: first hit cell of some ray (gets logodds_occupied)

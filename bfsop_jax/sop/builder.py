@@ -1,4 +1,4 @@
-"""SOP instances from the agent's online map (SPEC 8.1).
+"""SOP instances from the agent's online map (docs/design.md §7.1).
 
 Node 0 is the agent's position (its own zero-reward set 0). Set ``k + 1`` holds the
 ``preset.n_viewpoints`` viewpoints of landmark of interest ``k`` (k < ``preset.n_loi``):

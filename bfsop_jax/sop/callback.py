@@ -7,6 +7,11 @@ the rows that ask, so a batch of episodes pays for the teacher only where one sw
 JAX runs its own threads, so worker processes are started with the ``spawn`` method
 (never ``fork`` after JAX has started) and the pool is created once and reused across
 calls. A batch of one is solved in the calling process.
+
+The VNS options travel as one :class:`~bfsop_jax.sop.vns.VNSConfig` (``config=``; hashable,
+and picklable for the spawned workers). The loose keyword options of the old API
+(``max_iters=...``) are still accepted: they are folded into the config once, at the entry
+point, and override its fields.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
-from bfsop_jax.sop.vns import solve_vns
+from bfsop_jax.sop.vns import VNSConfig, solve_vns
 
 __all__ = [
     "callback_stats",
@@ -64,10 +69,12 @@ def shutdown_pool() -> None:
 atexit.register(shutdown_pool)
 
 
-def _solve_packed(item: tuple[dict[str, np.ndarray], int, int, dict[str, Any]]):
+def _solve_packed(
+    item: tuple[dict[str, np.ndarray], int, int, VNSConfig],
+) -> tuple[np.ndarray, np.float32, np.float32]:
     """Worker entry point: solve one instance, return padded (nodes, reward, cost)."""
-    fields, seed, length, kwargs = item
-    sol = solve_vns(SOPInstance(**fields), seed=seed, **kwargs)
+    fields, seed, length, config = item
+    sol = solve_vns(SOPInstance(**fields), seed=seed, config=config)
     padded = sol.padded(length)
     return padded.nodes, padded.reward, padded.cost
 
@@ -76,6 +83,7 @@ def solve_vns_batch(
     instances: SOPInstance,
     seeds: Any,
     processes: int | None = None,
+    config: VNSConfig | None = None,
     **vns_kwargs: Any,
 ) -> Solution:
     """Solve a batch of instances with :func:`solve_vns`, one process per CPU core.
@@ -84,12 +92,15 @@ def solve_vns_batch(
         instances: batched instance, every leaf with a leading batch axis B (NumPy or JAX).
         seeds: [B] integer seeds, one per instance.
         processes: worker processes (default: number of CPU cores, at most B).
-        **vns_kwargs: passed to :func:`solve_vns` (``max_iters``, ``time_limit``, ...).
+        config: the VNS options (default: the reference configuration).
+        **vns_kwargs: old-style loose options (``max_iters``, ``time_limit``, ...), still
+            accepted; they override the fields of ``config``.
 
     Returns:
         Batched NumPy :class:`Solution`: ``nodes`` [B, K + 1] int32 padded with -1,
         ``reward`` [B] and ``cost`` [B] float32. Equal to ``solve_vns`` per instance.
     """
+    config = VNSConfig.resolve(config, **vns_kwargs)
     inst = instances.to_numpy()
     if inst.set_id.ndim != 2:
         raise ValueError(f"expected a batch of instances, set_id has shape {inst.set_id.shape}")
@@ -97,7 +108,7 @@ def solve_vns_batch(
     seeds = np.broadcast_to(np.asarray(seeds, np.int64).reshape(-1), (batch,))
     length = plan_length(inst.num_sets)
     items = [
-        ({f.name: getattr(inst, f.name)[b] for f in _FIELDS}, int(seeds[b]), length, vns_kwargs)
+        ({f.name: getattr(inst, f.name)[b] for f in _FIELDS}, int(seeds[b]), length, config)
         for b in range(batch)
     ]
     workers = min(processes or os.cpu_count() or 1, batch)
@@ -114,13 +125,19 @@ def solve_vns_batch(
     )
 
 
-def vns_callback(instances: SOPInstance, seeds: jax.Array, **vns_kwargs: Any) -> Solution:
+def vns_callback(
+    instances: SOPInstance,
+    seeds: jax.Array,
+    config: VNSConfig | None = None,
+    **vns_kwargs: Any,
+) -> Solution:
     """Label a batch from (jitted) JAX code: ``jax.pure_callback`` to :func:`solve_vns_batch`.
 
     Args:
         instances: batched instance, leading batch axis B (JAX arrays, may be traced).
         seeds: [B] integer seeds.
-        **vns_kwargs: static options for :func:`solve_vns`.
+        config: the VNS options, static (default: the reference configuration).
+        **vns_kwargs: old-style loose options, still accepted; they override ``config``.
 
     Returns:
         Batched :class:`Solution` of JAX arrays: ``nodes`` [B, K + 1] int32 (-1 padded),
@@ -133,14 +150,14 @@ def vns_callback(instances: SOPInstance, seeds: jax.Array, **vns_kwargs: Any) ->
         reward=jax.ShapeDtypeStruct((batch,), jnp.float32),
         cost=jax.ShapeDtypeStruct((batch,), jnp.float32),
     )
-    host = functools.partial(_host_solve, **vns_kwargs)
+    host = functools.partial(_host_solve, config=VNSConfig.resolve(config, **vns_kwargs))
     return jax.pure_callback(
         host, shapes, instances, jnp.asarray(seeds, jnp.int32), vmap_method="sequential"
     )
 
 
-def _host_solve(instances: SOPInstance, seeds: np.ndarray, **vns_kwargs: Any) -> Solution:
-    return solve_vns_batch(instances, np.asarray(seeds), **vns_kwargs)
+def _host_solve(instances: SOPInstance, seeds: np.ndarray, config: VNSConfig) -> Solution:
+    return solve_vns_batch(instances, np.asarray(seeds), config=config)
 
 
 def callback_stats() -> dict[str, float]:
@@ -158,7 +175,11 @@ def reset_callback_stats() -> None:
 
 
 def vns_masked_callback(
-    instance: SOPInstance, mask: jax.Array, seed: int = 0, **vns_kwargs: Any
+    instance: SOPInstance,
+    mask: jax.Array,
+    seed: int = 0,
+    config: VNSConfig | None = None,
+    **vns_kwargs: Any,
 ) -> Solution:
     """The VNS teacher as an in-loop planner: solve ``instance`` only where ``mask`` holds.
 
@@ -171,7 +192,12 @@ def vns_masked_callback(
         instance: one SOP instance (JAX arrays, may be traced).
         mask: bool [] (per row under ``vmap``).
         seed: VNS seed, the same for every row.
-        **vns_kwargs: static options for :func:`solve_vns`.
+        config: the VNS options, static (default: the reference configuration).
+        **vns_kwargs: old-style loose options, still accepted; they override ``config``.
+
+    Returns:
+        :class:`Solution` of JAX arrays: ``nodes`` [K + 1] int32 (-1 padded), ``reward``
+        and ``cost`` [] float32 (per row under ``vmap``).
     """
     length = plan_length(instance.set_reward.shape[-1])
     shapes = Solution(
@@ -179,14 +205,15 @@ def vns_masked_callback(
         reward=jax.ShapeDtypeStruct((), jnp.float32),
         cost=jax.ShapeDtypeStruct((), jnp.float32),
     )
-    host = functools.partial(_host_solve_masked, seed=int(seed), **vns_kwargs)
+    config = VNSConfig.resolve(config, **vns_kwargs)
+    host = functools.partial(_host_solve_masked, seed=int(seed), config=config)
     return jax.pure_callback(
         host, shapes, instance, jnp.asarray(mask, bool), vmap_method="broadcast_all"
     )
 
 
 def _host_solve_masked(
-    instance: SOPInstance, mask: np.ndarray, seed: int, **vns_kwargs: Any
+    instance: SOPInstance, mask: np.ndarray, seed: int, config: VNSConfig
 ) -> Solution:
     mask = np.asarray(mask, bool)
     lead = mask.shape
@@ -204,7 +231,7 @@ def _host_solve_masked(
     if rows.size:
         t0 = time.perf_counter()
         picked = jax.tree_util.tree_map(lambda a: a[rows], flat)
-        sol = solve_vns_batch(picked, np.full(rows.size, seed), **vns_kwargs)
+        sol = solve_vns_batch(picked, np.full(rows.size, seed), config=config)
         _STATS["seconds"] += time.perf_counter() - t0
         _STATS["calls"] += 1
         _STATS["rows"] += int(rows.size)

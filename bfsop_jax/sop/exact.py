@@ -1,4 +1,4 @@
-"""Exact SOP solver: dynamic programming over subsets of sets (SPEC 8.4).
+"""Exact SOP solver: dynamic programming over subsets of sets (docs/design.md §7.4).
 
 State: (subset S of visited sets, last visited node u) -> least cost of a path from the
 start through one node of every set of S, ending at u. Subsets are processed by size;

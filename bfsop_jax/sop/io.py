@@ -1,6 +1,6 @@
 """Instance sources: ``.sop`` files of the public SOP benchmark, and random instances.
 
-``read_sop`` reads the public Set Orienteering benchmark (SPEC 8.2); ``random_instance``
+``read_sop`` reads the public Set Orienteering benchmark (docs/design.md §7.2); ``random_instance``
 draws synthetic instances shaped like the navigation ones (start node + sets of
 viewpoints around landmarks, open path), for tests and benchmarks.
 
@@ -233,7 +233,7 @@ def random_instance(
     masked_sets: int = 0,
     box: tuple[float, float] = (30.0, 20.0),
 ) -> SOPInstance:
-    """A random instance shaped like the navigation SOP (SPEC 8.1).
+    """A random instance shaped like the navigation SOP (docs/design.md §7.1).
 
     Node 0 is the start (set 0, reward 0); set k = 1..num_sets has ``viewpoints`` nodes
     0.5-1.0 m around a landmark drawn uniformly in a ``box`` (metres); rewards are uniform

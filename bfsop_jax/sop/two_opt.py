@@ -1,4 +1,4 @@
-"""Bounded SOP 2-opt and the budget gate (JAX, SPEC 8.5).
+"""Bounded SOP 2-opt and the budget gate (JAX, docs/design.md §7.5).
 
 ``two_opt`` improves a plan without changing which sets it visits:
 
@@ -18,6 +18,9 @@ every leaf, ``jax.vmap`` inside); both are jitted. Shapes are static: N nodes, T
 ``solution.nodes.shape[-1]`` plan slots (padded with -1). Internally a route holds T + 1
 positions: the start, the visited nodes, then the end node, or a virtual node N whose
 incoming edges cost 0 for an open path; later positions repeat that virtual node.
+
+The SOP rules (blocked and open sets, the plan's end, its reward) come from
+:mod:`bfsop_jax.sop.rules`; costs are summed along the route with the virtual node.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from bfsop_jax.sop.rules import blocked_sets, open_nodes, plan_end, plan_reward
 from bfsop_jax.sop.types import Solution, SOPInstance
 
 __all__ = ["two_opt", "budget_gate", "insertion_fill"]
@@ -61,7 +65,7 @@ def _route(instance: SOPInstance, nodes: jax.Array) -> tuple[jax.Array, jax.Arra
     m = jnp.maximum(count - 1 - has_end.astype(count.dtype), 0)
     pos = jnp.arange(t + 1)
     padded = jnp.concatenate([nodes, jnp.full((1,), -1, nodes.dtype)])
-    last = jnp.where(has_end, instance.end, n)
+    last = plan_end(instance, n)
     route = jnp.where(pos <= m, padded, jnp.where(pos == m + 1, last, n))
     route = route.at[0].set(instance.start)
     return route.astype(jnp.int32), m
@@ -78,10 +82,7 @@ def _to_solution(instance: SOPInstance, cx: jax.Array, route: jax.Array, m: jax.
     pos = jnp.arange(t)
     keep = (pos <= m) | ((pos == m + 1) & (route[:t] < n))
     nodes = jnp.where(keep, route[:t], -1).astype(jnp.int32)
-    visited = (pos >= 1) & (pos <= m)
-    sets = instance.set_id[jnp.clip(route[:t], 0, n - 1)]
-    reward = jnp.sum(jnp.where(visited, instance.set_reward[jnp.clip(sets, 0)], 0.0))
-    return Solution(nodes=nodes, reward=reward.astype(jnp.float32), cost=_route_cost(cx, route))
+    return Solution(nodes=nodes, reward=plan_reward(instance, nodes), cost=_route_cost(cx, route))
 
 
 def _best_nodes(instance: SOPInstance, cx: jax.Array, route: jax.Array, m: jax.Array) -> jax.Array:
@@ -185,7 +186,7 @@ def _budget_gate_single(instance: SOPInstance, solution: Solution) -> Solution:
     route, m = _route(instance, solution.nodes)
     t1 = route.shape[0]
     n = instance.cost.shape[-1]
-    end = jnp.where(instance.end >= 0, instance.end, n)
+    end = plan_end(instance, n)
     edges = cx[route[:-1], route[1:]]
     prefix = jnp.concatenate([jnp.zeros((1,), edges.dtype), jnp.cumsum(edges)])  # cost to p
     total = prefix + cx[route, end]  # plan keeping positions 0..p, then the end
@@ -231,9 +232,8 @@ def _insertion_fill_single(instance: SOPInstance, solution: Solution) -> Solutio
     k = instance.set_reward.shape[-1]
     set_id = instance.set_id
     reward = instance.set_reward[jnp.clip(set_id, 0)]  # [N] reward of each node's set
-    end = jnp.where(instance.end >= 0, instance.end, n)
-    blocked = jnp.zeros((k,), bool).at[jnp.clip(set_id[instance.start], 0)].set(True)
-    blocked = blocked | ((jnp.arange(k) == set_id[jnp.clip(instance.end, 0)]) & (instance.end >= 0))
+    end = plan_end(instance, n)
+    blocked = blocked_sets(instance)
     pos = jnp.arange(t1)
 
     def step(state):
@@ -242,7 +242,7 @@ def _insertion_fill_single(instance: SOPInstance, solution: Solution) -> Solutio
         used = (
             jnp.zeros((k,), bool).at[jnp.clip(set_id[jnp.clip(route, 0, n - 1)], 0)].max(on_route)
         )
-        free = (set_id >= 0) & ~(used | blocked)[jnp.clip(set_id, 0)] & (reward > 0)
+        free = open_nodes(set_id, used | blocked) & (reward > 0)
         nxt = route[jnp.clip(pos + 1, 0, t1 - 1)]
         delta = cx[route][:, :n] + cx[:n, nxt].T - cx[route, nxt][:, None]  # [T+1, N]
         ok = (pos[:, None] <= m) & free[None, :] & (cost + delta <= instance.budget)
@@ -275,5 +275,11 @@ def insertion_fill(instance: SOPInstance, solution: Solution) -> Solution:
     within the budget (the VNS's greedy rule); stops when nothing fits. Never lowers the
     reward; the input should already fit the budget (e.g. after :func:`budget_gate`).
     Single or batched like :func:`two_opt`.
+
+    Unlike the switcher's estimate :func:`bfsop_jax.agents.bfsop.greedy_estimate` (points on
+    integer coordinates, no plan), this works on the instance's cost matrix and sets (one
+    node per unvisited open set, :func:`bfsop_jax.sop.rules.open_nodes`), keeps the end
+    node, scores max(added cost, 0) / reward over every (position, node) pair (ties to the
+    earliest position, then the lowest node) and returns the filled plan.
     """
     return _batched(_insertion_fill_single)(instance, solution)

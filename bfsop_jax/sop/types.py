@@ -4,7 +4,7 @@ One format serves the NumPy solvers (VNS teacher, exact DP) and the JAX code (2-
 budget gate, model): the leaves of :class:`SOPInstance` and :class:`Solution` are plain
 arrays, NumPy or JAX, and a batch simply carries a leading batch axis on every leaf.
 
-Conventions (SPEC 8.1):
+Conventions (docs/design.md §7.1):
 
 * nodes ``0..N-1``; ``set_id[i]`` is the set of node ``i``, ``-1`` marks a padding node;
 * sets ``0..K-1`` with reward ``set_reward[k]``; the start node forms its own zero-reward
@@ -18,6 +18,7 @@ Conventions (SPEC 8.1):
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import jax
@@ -158,95 +159,154 @@ def _as_int32(x: Any, name: str) -> np.ndarray:
     return a.astype(np.int32)
 
 
-def validate(instance: SOPInstance) -> None:
-    """Check an instance (single or batched); raise ``ValueError`` naming the problem.
+def validate(instance: SOPInstance, max_batch_dims: int | None = None) -> SOPInstance:
+    """Check one instance or a batch (leading batch axes); raise ``ValueError`` naming it.
 
     Checked: shapes, dtypes, NaN in costs / rewards / budget / coords, negative costs,
     rewards or budget, set ids outside ``[-1, K)``, a rewarding set without nodes, a start
     node that is padding or shares its set, a start set with reward, and an ``end`` that is
     neither -1, the start, nor a node alone in its own zero-reward set. Infinite costs are
-    allowed (unreachable pairs); a set with no node is allowed only with reward 0.
+    allowed (unreachable pairs); a set with no node is allowed only with reward 0. The
+    value checks run vectorised over the batch; the message of a batch names its first bad
+    element (``batch element (i,): ...``). An empty batch is refused.
+
+    Args:
+        instance: leaves NumPy or JAX, shapes as :class:`SOPInstance` says, with the same
+            leading batch axes on every leaf.
+        max_batch_dims: refuse more leading batch axes than this (None: any number).
+
+    Returns:
+        The instance with NumPy leaves (the arrays that were checked).
     """
+    if not isinstance(instance, SOPInstance):
+        raise ValueError(f"expected an SOPInstance, got {type(instance).__name__}")
     inst = jax.tree_util.tree_map(np.asarray, instance)
     if inst.set_id.ndim == 0:
         raise ValueError("set_id must be a [N] array, got a scalar")
     batch = inst.set_id.shape[:-1]
-    if batch:
-        for idx in np.ndindex(*batch):
-            try:
-                validate(inst[idx])
-            except ValueError as err:
-                raise ValueError(f"batch element {idx}: {err}") from None
-        return
-    _validate_single(inst)
+    if max_batch_dims is not None and len(batch) > max_batch_dims:
+        raise ValueError(
+            f"set_id must be [N] with at most {max_batch_dims} leading batch axes, "
+            f"got shape {inst.set_id.shape}"
+        )
+    _check_shapes(inst, batch)
+    if batch and math.prod(batch) == 0:
+        raise ValueError(f"empty instance batch (batch shape {batch})")
+    flat = jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[len(batch) :]), inst)
+    problem = _first_problem(flat)
+    if problem is not None:
+        element, message = problem
+        if batch:
+            idx = tuple(int(i) for i in np.unravel_index(element, batch))
+            message = f"batch element {idx}: {message}"
+        raise ValueError(message)
+    return inst
 
 
-def _validate_single(inst: SOPInstance) -> None:
-    cost, set_id, reward = inst.cost, inst.set_id, inst.set_reward
-    if set_id.ndim != 1:
+def _check_shapes(inst: SOPInstance, batch: tuple[int, ...]) -> None:
+    """Shapes and dtypes of every leaf, per instance after the leading ``batch`` axes."""
+    nb = len(batch)
+
+    def shape(name: str) -> tuple[int, ...]:
+        got = np.shape(getattr(inst, name))
+        if got[:nb] != batch:
+            raise ValueError(f"{name} must have the batch shape {batch}, got shape {got}")
+        return got[nb:]
+
+    set_id = inst.set_id
+    if set_id.ndim - nb != 1:
         raise ValueError(f"set_id must be [N], got shape {set_id.shape}")
-    n = set_id.shape[0]
+    n = set_id.shape[-1]
     if n < 1:
         raise ValueError("an instance needs at least one node (the start)")
-    if cost.shape != (n, n):
-        raise ValueError(f"cost must be [N, N] = [{n}, {n}], got shape {cost.shape}")
-    if reward.ndim != 1 or reward.shape[0] < 1:
-        raise ValueError(f"set_reward must be [K] with K >= 1, got shape {reward.shape}")
-    if np.shape(inst.coords) != (n, 2):
-        raise ValueError(f"coords must be [N, 2] = [{n}, 2], got shape {np.shape(inst.coords)}")
+    if shape("cost") != (n, n):
+        raise ValueError(f"cost must be [N, N] = [{n}, {n}], got shape {shape('cost')}")
+    reward = shape("set_reward")
+    if len(reward) != 1 or reward[0] < 1:
+        raise ValueError(f"set_reward must be [K] with K >= 1, got shape {reward}")
+    if shape("coords") != (n, 2):
+        raise ValueError(f"coords must be [N, 2] = [{n}, 2], got shape {shape('coords')}")
     for name in ("start", "end", "budget"):
-        if np.ndim(getattr(inst, name)) != 0:
-            raise ValueError(f"{name} must be a scalar, got shape {np.shape(getattr(inst, name))}")
+        if shape(name) != ():
+            raise ValueError(f"{name} must be a scalar, got shape {shape(name)}")
     if set_id.dtype.kind not in "iu":
         raise ValueError(f"set_id must hold integers, got dtype {set_id.dtype}")
-    if np.isnan(cost).any():
-        raise ValueError("cost contains NaN")
-    if (cost < 0).any():
-        i, j = np.argwhere(cost < 0)[0]
-        raise ValueError(f"negative cost {cost[i, j]} from node {i} to node {j}")
-    if np.isnan(reward).any() or np.isinf(reward).any():
-        raise ValueError("set_reward contains NaN or inf")
-    if (reward < 0).any():
-        raise ValueError(f"negative set reward in set {int(np.argmax(reward < 0))}")
-    if not np.isfinite(inst.coords).all():
-        raise ValueError("coords contain NaN or inf")
-    budget = float(inst.budget)
-    if np.isnan(budget):
-        raise ValueError("budget is NaN")
-    if budget < 0:
-        raise ValueError(f"negative budget {budget}")
-    k = reward.shape[0]
-    bad = (set_id < -1) | (set_id >= k)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise ValueError(f"set id {int(set_id[i])} of node {i} is outside [-1, {k})")
-    counts = np.bincount(set_id[set_id >= 0], minlength=k)
-    empty_rewarding = (counts == 0) & (reward > 0)
-    if empty_rewarding.any():
-        s = int(np.argmax(empty_rewarding))
-        raise ValueError(
-            f"set {s} has reward {reward[s]} but no node (a masked set must have reward 0)"
-        )
-    start, end = int(inst.start), int(inst.end)
-    if not 0 <= start < n:
-        raise ValueError(f"start node {start} is outside [0, {n})")
-    if set_id[start] < 0:
-        raise ValueError(f"start node {start} is a padding node (set_id -1)")
-    s0 = int(set_id[start])
-    if counts[s0] != 1:
-        raise ValueError(f"the start node must be alone in its set; set {s0} has {counts[s0]}")
-    if reward[s0] != 0:
-        raise ValueError(f"the start set {s0} must have reward 0, got {reward[s0]}")
-    if end != -1 and end != start:
-        if not 0 <= end < n:
-            raise ValueError(f"end node {end} is outside [0, {n}) (use -1 for an open path)")
-        if set_id[end] < 0:
-            raise ValueError(f"end node {end} is a padding node (set_id -1)")
-        se = int(set_id[end])
-        if counts[se] != 1 or reward[se] != 0 or se == s0:
-            raise ValueError(
-                f"the end node {end} must be alone in its own zero-reward set (set {se})"
-            )
+
+
+def _first_problem(inst: SOPInstance) -> tuple[int, str] | None:
+    """First bad element of a flat batch [B] and its first problem, or None (vectorised)."""
+    cost, set_id, reward = inst.cost, inst.set_id, inst.set_reward
+    b, n = set_id.shape
+    k = reward.shape[1]
+    rows = np.arange(b)
+    budget = inst.budget.astype(np.float64)
+    start, end = inst.start.astype(np.int64), inst.end.astype(np.int64)
+
+    in_range = (set_id >= 0) & (set_id < k)
+    flat_ids = (set_id + k * rows[:, None])[in_range]
+    counts = np.bincount(flat_ids, minlength=b * k).reshape(b, k)  # nodes per set
+    start_ok = (start >= 0) & (start < n)
+    s0 = set_id[rows, np.clip(start, 0, n - 1)]
+    s0c = np.clip(s0, 0, k - 1)
+    special_end = (end != -1) & (end != start)
+    end_ok = (end >= 0) & (end < n)
+    se = set_id[rows, np.clip(end, 0, n - 1)]
+    sec = np.clip(se, 0, k - 1)
+
+    def negative_cost(e: int) -> str:
+        i, j = np.argwhere(cost[e] < 0)[0]
+        return f"negative cost {cost[e, i, j]} from node {i} to node {j}"
+
+    def bad_set_id(e: int) -> str:
+        i = int(np.argmax(~in_range[e] & (set_id[e] != -1)))
+        return f"set id {int(set_id[e, i])} of node {i} is outside [-1, {k})"
+
+    def empty_set(e: int) -> str:
+        s = int(np.argmax((counts[e] == 0) & (reward[e] > 0)))
+        return f"set {s} has reward {reward[e, s]} but no node (a masked set must have reward 0)"
+
+    # (bad [B], message of element e) in the order they are reported
+    checks: list[tuple[np.ndarray, Any]] = [
+        (np.isnan(cost).any(axis=(1, 2)), lambda e: "cost contains NaN"),
+        ((cost < 0).any(axis=(1, 2)), negative_cost),
+        (~np.isfinite(reward).all(axis=1), lambda e: "set_reward contains NaN or inf"),
+        (
+            (reward < 0).any(axis=1),
+            lambda e: f"negative set reward in set {int(np.argmax(reward[e] < 0))}",
+        ),
+        (~np.isfinite(inst.coords).all(axis=(1, 2)), lambda e: "coords contain NaN or inf"),
+        (np.isnan(budget), lambda e: "budget is NaN"),
+        (budget < 0, lambda e: f"negative budget {float(budget[e])}"),
+        ((~in_range & (set_id != -1)).any(axis=1), bad_set_id),
+        (((counts == 0) & (reward > 0)).any(axis=1), empty_set),
+        (~start_ok, lambda e: f"start node {int(start[e])} is outside [0, {n})"),
+        (s0 < 0, lambda e: f"start node {int(start[e])} is a padding node (set_id -1)"),
+        (
+            counts[rows, s0c] != 1,
+            lambda e: f"the start node must be alone in its set; set {int(s0[e])} has "
+            f"{counts[e, s0c[e]]}",
+        ),
+        (
+            reward[rows, s0c] != 0,
+            lambda e: f"the start set {int(s0[e])} must have reward 0, got {reward[e, s0c[e]]}",
+        ),
+        (
+            special_end & ~end_ok,
+            lambda e: f"end node {int(end[e])} is outside [0, {n}) (use -1 for an open path)",
+        ),
+        (special_end & (se < 0), lambda e: f"end node {int(end[e])} is a padding node (set_id -1)"),
+        (
+            special_end & ((counts[rows, sec] != 1) | (reward[rows, sec] != 0) | (se == s0)),
+            lambda e: f"the end node {int(end[e])} must be alone in its own zero-reward set "
+            f"(set {int(se[e])})",
+        ),
+    ]
+    bad = np.stack([flags for flags, _ in checks])  # [C, B]
+    failing = bad.any(axis=0)
+    if not failing.any():
+        return None
+    e = int(np.argmax(failing))
+    return e, checks[int(np.argmax(bad[:, e]))][1](e)
 
 
 def evaluate(instance: SOPInstance, nodes: Any) -> tuple[float, float, bool]:

@@ -1,6 +1,7 @@
 """Behaviour-cloning training of the Strategic Transformer: configs, the vmapped training
-program, Orbax checkpoints and the epoch log (SPEC 9.3)."""
+program, Orbax checkpoints and the epoch log (docs/design.md §8.3)."""
 
+from bfsop_jax.checkpoint import CheckpointStore, export_policy
 from bfsop_jax.training.bc import (
     TrainResult,
     TrainState,
@@ -10,7 +11,6 @@ from bfsop_jax.training.bc import (
     instances_from_dataset,
     train,
 )
-from bfsop_jax.training.checkpoint import CheckpointStore, export_policy
 from bfsop_jax.training.config import (
     ModelConfig,
     Replica,

@@ -1,4 +1,4 @@
-"""Behaviour cloning of the VNS teacher with teacher forcing (SPEC 9.3).
+"""Behaviour cloning of the VNS teacher with teacher forcing (docs/design.md §8.3).
 
 Loss: cross-entropy of the teacher's next node (END after its last node) at every step of
 every plan, averaged over the valid steps of a minibatch. Optimiser: global-norm clipping
@@ -13,7 +13,8 @@ a *replica*: replicas share the data and all shapes, so they train side by side 
 ``jax.vmap``-ed program. At the end the replica with the lowest validation loss becomes
 the run's model.
 
-Dataset format (a dict of NumPy arrays, leading axis D; see :func:`instances_from_dataset`):
+Dataset format (a dict of NumPy arrays, leading axis D; the table is
+:data:`bfsop_jax.data.schema.RECORD_FIELDS`, see :func:`instances_from_dataset`):
 ``coords [D, N, 2]``, ``cost [D, N, N]``, ``set_id [D, N]``, ``set_reward [D, K]``,
 ``budget [D]``, ``teacher_nodes [D, K + 1]``; node 0 is the start, paths are open.
 """
@@ -40,17 +41,18 @@ import optax
 from flax import nnx, struct
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from bfsop_jax import checkpoint as ckpt
+from bfsop_jax.data.schema import DATASET_KEYS, check_records, make_records
 from bfsop_jax.model.decode import teacher_forced_logits
 from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.parallel import DATA_AXIS, barrier, mesh_size, place, to_host
-from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
-from bfsop_jax.training import checkpoint as ckpt
+from bfsop_jax.sop.types import Solution, SOPInstance, plan_length, validate
 from bfsop_jax.training.config import Replica, RunConfig, TrainConfig
 from bfsop_jax.training.metrics import MetricsLog, imitation_stats
 
 __all__ = [
-    "DATASET_KEYS",
+    "DATASET_KEYS",  # re-exported from bfsop_jax.data.schema
     "Hyper",
     "TRACE_COUNTS",
     "TrainResult",
@@ -69,52 +71,22 @@ __all__ = [
     "train",
 ]
 
-DATASET_KEYS = ("coords", "cost", "set_id", "set_reward", "budget", "teacher_nodes")
-_DTYPES = {
-    "coords": np.float32,
-    "cost": np.float32,
-    "set_id": np.int32,
-    "set_reward": np.float32,
-    "budget": np.float32,
-    "teacher_nodes": np.int32,
-}
-
-
 # -- data ------------------------------------------------------------------------------------
 def _check_dataset(ds: Mapping[str, Any], name: str = "dataset") -> dict[str, np.ndarray]:
-    """Typed copy of the arrays the trainer uses; ValueError naming the problem."""
-    if not isinstance(ds, Mapping):
-        raise ValueError(f"{name} must be a dict of arrays, got {type(ds).__name__}")
-    missing = [k for k in DATASET_KEYS if k not in ds]
-    if missing:
-        raise ValueError(f"{name} lacks the arrays {missing} (needs {list(DATASET_KEYS)})")
-    out = {k: np.asarray(ds[k]).astype(_DTYPES[k], copy=False) for k in DATASET_KEYS}
-    set_id, reward = out["set_id"], out["set_reward"]
-    if set_id.ndim != 2:
-        raise ValueError(f"{name}: set_id must be [D, N], got shape {set_id.shape}")
-    d, n = set_id.shape
-    if reward.ndim != 2 or reward.shape[0] != d:
-        raise ValueError(f"{name}: set_reward must be [D, K] with D = {d}, got {reward.shape}")
-    k = reward.shape[1]
-    expected = {
-        "coords": (d, n, 2),
-        "cost": (d, n, n),
-        "budget": (d,),
-        "teacher_nodes": (d, plan_length(k)),
-    }
-    for key, shape in expected.items():
-        if out[key].shape != shape:
-            raise ValueError(f"{name}: {key} must have shape {shape}, got {out[key].shape}")
+    """Typed copy of the arrays the trainer uses; ValueError naming the problem.
+
+    Keys, dtypes and shapes come from :data:`bfsop_jax.data.schema.RECORD_FIELDS`, the
+    instances are checked by :func:`bfsop_jax.sop.types.validate` (start 0, open path), the
+    teacher plans here.
+    """
+    out = check_records(ds, name)
+    d, n = out["set_id"].shape
     if d == 0:
         raise ValueError(f"{name} is empty (D = 0)")
-    if np.isnan(out["cost"]).any() or (out["cost"] < 0).any():
-        raise ValueError(f"{name}: cost contains NaN or negative entries")
-    if not np.isfinite(out["coords"]).all() or not np.isfinite(reward).all():
-        raise ValueError(f"{name}: coords or set_reward contain NaN or inf")
-    if np.isnan(out["budget"]).any() or (out["budget"] < 0).any():
-        raise ValueError(f"{name}: budget contains NaN or negative entries")
-    if ((set_id < -1) | (set_id >= k)).any():
-        raise ValueError(f"{name}: set_id outside [-1, {k})")
+    try:
+        validate(_dataset_instances(out))
+    except ValueError as err:
+        raise ValueError(f"{name}: {err}") from None
     teacher = out["teacher_nodes"]
     if (teacher[:, 0] != 0).any():
         raise ValueError(f"{name}: teacher_nodes must start at node 0 (the start)")
@@ -123,12 +95,8 @@ def _check_dataset(ds: Mapping[str, Any], name: str = "dataset") -> dict[str, np
     return out
 
 
-def instances_from_dataset(ds: Mapping[str, Any]) -> SOPInstance:
-    """Batched :class:`SOPInstance` (NumPy leaves, leading axis D) of a dataset dict.
-
-    Start node 0, open paths (end = -1). Extra keys of ``ds`` are ignored.
-    """
-    data = _check_dataset(ds)
+def _dataset_instances(data: Mapping[str, np.ndarray]) -> SOPInstance:
+    """Batched instances [D] of typed dataset arrays: start node 0, open paths."""
     d = data["set_id"].shape[0]
     return SOPInstance(
         cost=data["cost"],
@@ -139,6 +107,14 @@ def instances_from_dataset(ds: Mapping[str, Any]) -> SOPInstance:
         budget=data["budget"],
         coords=data["coords"],
     )
+
+
+def instances_from_dataset(ds: Mapping[str, Any]) -> SOPInstance:
+    """Batched :class:`SOPInstance` (NumPy leaves, leading axis D) of a dataset dict.
+
+    Start node 0, open paths (end = -1). Extra keys of ``ds`` are ignored.
+    """
+    return _dataset_instances(_check_dataset(ds))
 
 
 def dataset_from_instances(
@@ -157,16 +133,17 @@ def dataset_from_instances(
         if int(inst.start) != 0 or int(inst.end) != -1:
             raise ValueError(f"instance {i}: the dataset format needs start 0 and an open path")
     teacher = np.stack([np.asarray(sol.padded(plan_length(k)).nodes) for sol in solutions])
-    ds = {
+    ds = {  # typed by the record table (dtypes and order)
         "coords": np.stack([inst.coords for inst in insts]),
         "cost": np.stack([inst.cost for inst in insts]),
         "set_id": np.stack([inst.set_id for inst in insts]),
         "set_reward": np.stack([inst.set_reward for inst in insts]),
         "budget": np.stack([inst.budget for inst in insts]),
-        "teacher_nodes": teacher.astype(np.int32),
-        "teacher_reward": np.asarray([sol.reward for sol in solutions], np.float32),
-        "teacher_cost": np.asarray([sol.cost for sol in solutions], np.float32),
+        "teacher_nodes": teacher,
+        "teacher_reward": np.asarray([sol.reward for sol in solutions]),
+        "teacher_cost": np.asarray([sol.cost for sol in solutions]),
     }
+    ds = make_records(ds, complete=False)
     _check_dataset(ds)
     return ds
 
@@ -548,7 +525,7 @@ def train(
         config: model, recipe and preset name.
         train_ds, val_ds: dataset dicts (``val_ds`` may be None: the training loss then
             picks the best replica).
-        out_dir: run directory (see :mod:`bfsop_jax.training.checkpoint` for its layout).
+        out_dir: run directory (see :mod:`bfsop_jax.checkpoint` for its layout).
         seeds, lrs: without ``replicas``, the replicas are their Cartesian product
             (seed-major) with the recipe's other numbers.
         resume: continue from the last checkpoint in ``out_dir`` (same config required).
@@ -762,6 +739,26 @@ def _save_replica(
         "epochs": epochs,
     }
     ckpt.write_config(rep_dir, summary)
+
+
+def latest_best_params(
+    run_dir: str | os.PathLike, config: dict[str, Any], model_config: ModelConfig
+) -> Any:
+    """Parameters of the best replica in the last epoch checkpoint of a run directory
+    (``config``: its ``config.json``); ValueError when there is none."""
+    run_dir = Path(run_dir)
+    replicas = config.get("replicas") or []
+    if not replicas:
+        raise ValueError(f"{run_dir / ckpt.CONFIG_FILE} lists no replicas")
+    train_config = TrainConfig.from_dict(config["run"]["train"])
+    members = [Replica.from_dict(r, train_config) for r in replicas]
+    states = jax.eval_shape(lambda: init_states(model_config, train_config, replicas=members)[1])
+    with ckpt.CheckpointStore(run_dir, read_only=True) as store:
+        if store.latest_epoch() is None:
+            raise ValueError(f"no checkpoint in {run_dir} (neither model/ nor an epoch checkpoint)")
+        state, meta = store.restore(states)
+    best = int(meta.get("best_replica", 0))
+    return jax.tree_util.tree_map(lambda x: x[best], state.params)
 
 
 def _meta(epoch: int, losses: list[float]) -> dict[str, Any]:

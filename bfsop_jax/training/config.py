@@ -35,7 +35,7 @@ __all__ = [
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
-    """Behaviour-cloning recipe (SPEC 9.3)."""
+    """Behaviour-cloning recipe (docs/design.md §8.3)."""
 
     epochs: int = 100  # paper value
     batch_size: int = 64  # instances per minibatch (static; each gives up to K steps)

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 
 from bfsop_jax.model.decode import TeacherForcing
 from bfsop_jax.parallel import is_primary
+from bfsop_jax.viz import plot_training_curve  # re-exported: drawn in viz
 
 __all__ = ["COLUMNS", "MetricsLog", "imitation_stats", "plot_training_curve"]
 
@@ -100,35 +101,3 @@ class MetricsLog:
             writer.writeheader()
             writer.writerows(self.rows)
         os.replace(tmp, self.csv)
-
-
-def plot_training_curve(rows: list[dict[str, Any]], path: str | os.PathLike) -> None:
-    """Loss and accuracy per epoch, one line per replica (train solid, validation dashed)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if not rows:
-        return
-    fig, (ax_loss, ax_acc) = plt.subplots(1, 2, figsize=(10, 4))
-    replicas = sorted({r["replica"] for r in rows})
-    for rep in replicas:
-        mine = sorted((r for r in rows if r["replica"] == rep), key=lambda r: r["epoch"])
-        epochs = [r["epoch"] for r in mine]
-        label = f"seed {mine[0]['seed']}, lr {mine[0]['base_lr']:.0e}" if len(replicas) > 1 else ""
-        for ax, key in ((ax_loss, "loss"), (ax_acc, "acc")):
-            (line,) = ax.plot(epochs, [r[f"train_{key}"] for r in mine], label=f"train {label}")
-            val = [r.get(f"val_{key}") for r in mine]
-            if all(v is not None for v in val):
-                ax.plot(epochs, val, "--", color=line.get_color(), label=f"val {label}")
-    ax_loss.set(xlabel="epoch", ylabel="cross-entropy per step", title="imitation loss")
-    ax_acc.set(xlabel="epoch", ylabel="next-node accuracy", title="teacher agreement")
-    for ax in (ax_loss, ax_acc):
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = Path(path).with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    os.replace(tmp, path)

@@ -77,7 +77,7 @@ def target_id(name: str | int) -> int:
     return TARGET_NAMES.index(name)
 
 
-# --- physical sizes (metres; SPEC 3.3) -----------------------------------------------------
+# --- physical sizes (metres; docs/design.md §2.3) -------------------------------------------------
 TARGET_SIZE_M: dict[str, float] = {
     "Apple": 0.08,
     "Tomato": 0.08,
@@ -112,7 +112,7 @@ FOOTPRINT_M: dict[str, tuple[float, float]] = {
     "GarbageCan": (0.35, 0.35),
 }
 
-# Detection size s (metres) of every category: targets per SPEC 3.3, furniture by its
+# Detection size s (metres) of every category: targets per docs/design.md §2.3, furniture by its
 # larger footprint side (landmarks 0.5-2 m).
 CATEGORY_SIZE_M = np.array(
     [TARGET_SIZE_M[n] for n in TARGET_NAMES]

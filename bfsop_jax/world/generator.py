@@ -1,4 +1,4 @@
-"""Procedural ProcTHOR-like houses in pure JAX (SPEC 3.2).
+"""Procedural ProcTHOR-like houses in pure JAX (docs/design.md §2.2).
 
 :func:`generate_house` builds a :class:`House` from a PRNG key in five stages, all with static
 shapes so that one preset compiles once and ``jax.vmap`` over keys batches whole houses:
@@ -614,7 +614,7 @@ def fill_free_pockets(occupied: jax.Array) -> jax.Array:
 
 
 def generate_house(key: jax.Array, preset: Preset | str = "demo") -> House:
-    """Random ProcTHOR-like house (SPEC 3.2); pure, jit-able and vmappable over ``key``.
+    """Random ProcTHOR-like house (docs/design.md §2.2); pure, jit-able and vmappable over ``key``.
 
     ``preset`` (a :class:`Preset` or its name) is static: it fixes the grid shape (H, W) =
     ``preset.grid_shape`` (cells of ``preset.cell_size`` m), R = ``preset.max_rooms`` room

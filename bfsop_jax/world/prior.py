@@ -1,4 +1,4 @@
-"""The co-occurrence prior P(target c | landmark category) (SPEC 4.4).
+"""The co-occurrence prior P(target c | landmark category) (docs/design.md §3.4).
 
 It is estimated from *training* houses only (seeds disjoint from evaluation seeds) and
 stored as JSON under ``data/``; an episode never reads statistics of its own house.

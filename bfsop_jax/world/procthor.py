@@ -1,4 +1,5 @@
-"""Import a ProcTHOR house JSON into the same :class:`House` arrays as the generator (SPEC 3.4).
+"""Import a ProcTHOR house JSON into the same :class:`House` arrays as the generator
+(docs/design.md §2.4).
 
 Host-side NumPy (a house is imported once). ProcTHOR's floor plane is (x, z) in metres; it
 becomes the grid's (x, y). The house is centred in the preset's grid.

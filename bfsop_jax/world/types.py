@@ -21,7 +21,7 @@ class House:
     room_type: jax.Array  # [R] int32: index into ROOM_TYPE_NAMES, -1 = unused slot
     object_category: jax.Array  # [M] int32: index into CATEGORY_NAMES, -1 = unused slot
     object_xy: jax.Array  # [M, 2] float32: centre (x, y) in metres
-    object_size: jax.Array  # [M] float32: detection size s in metres (SPEC 3.3)
+    object_size: jax.Array  # [M] float32: detection size s in metres (docs/design.md §2.3)
     object_half_extent: jax.Array  # [M, 2] float32: footprint half sizes (x, y), metres
     object_room: jax.Array  # [M] int32: room slot holding the object, -1 = none
     object_parent: jax.Array  # [M] int32: receptacle slot a target stands on, -1 = floor/none

@@ -1,0 +1,113 @@
+"""Evaluation charts: PPL per method, PPL per target category and method, and the
+hyper-parameter sweep (reward / VNS per swept value).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from bfsop_jax.viz.style import BLUE, RED, finish, method_colour, style_axes
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+__all__ = ["plot_category_ppl", "plot_ppl", "plot_sweep"]
+
+
+def plot_ppl(
+    labels: Sequence[str],
+    means: ArrayLike,
+    intervals: ArrayLike,
+    path: str | Path | None = None,
+    title: str | None = None,
+) -> plt.Figure:
+    """Bar chart of the mean PPL per method with its 95 % interval (error bars), the value
+    written in each bar.
+
+    Args: labels [n] method names, means [n], intervals [n, 2] (lo, hi).
+    """
+    means = np.asarray(means, float)
+    lo_hi = np.asarray(intervals, float).reshape(-1, 2)
+    fig, ax = plt.subplots(figsize=(1.3 * len(means) + 2.0, 3.6), dpi=110)
+    x = np.arange(len(means))
+    err = np.stack([means - lo_hi[:, 0], lo_hi[:, 1] - means])
+    colours = [method_colour(i) for i in range(len(means))]
+    ax.bar(x, means, color=colours, yerr=err, capsize=4, edgecolor="black", lw=0.6)
+    for xi, m in zip(x, means, strict=True):
+        ax.text(xi, m / 2, f"{m:.3f}", ha="center", va="center", fontsize=8, color="white")
+    ax.set_ylim(0, max(1e-3, float(np.nanmax(lo_hi[:, 1]))) * 1.15)
+    return _finish_bars(fig, ax, x, labels, "PPL (mean, 95% bootstrap CI)", title, path)
+
+
+def _finish_bars(fig, ax, x, ticks, ylabel, title, path) -> plt.Figure:
+    """Slanted tick labels, a y grid, the title; layout and PNG."""
+    ax.set_xticks(x, ticks, rotation=20, ha="right", fontsize=8)
+    style_axes(ax, ylabel=ylabel, title=title, title_size=10, grid="y")
+    return finish(fig, path)
+
+
+def plot_category_ppl(
+    categories: Sequence[str],
+    labels: Sequence[str],
+    table: ArrayLike,
+    path: str | Path | None = None,
+    title: str | None = None,
+) -> plt.Figure:
+    """Grouped bar chart of the mean PPL per target category (groups) and method (bars,
+    legend on the right; a NaN entry, a method without episodes of a category, draws no bar).
+
+    Args: categories [c] names, labels [n] method names, table [n, c] mean PPL.
+    """
+    table = np.asarray(table, float)
+    n, c = table.shape
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * c + 2.0) + 1.8, 3.6), dpi=110)
+    width = 0.8 / n
+    x = np.arange(c)
+    for i in range(n):
+        offset = (i - (n - 1) / 2) * width
+        ax.bar(x + offset, table[i], width, label=labels[i], color=method_colour(i), ec="black",
+               lw=0.4)  # fmt: skip
+    style_axes(ax, legend={"fontsize": 7, "loc": "upper left", "bbox_to_anchor": (1.01, 1.0)})
+    return _finish_bars(fig, ax, x, categories, "PPL (mean over houses)", title, path)
+
+
+def plot_sweep(
+    results: Sequence[Mapping[str, Any]],
+    grid: Mapping[str, Sequence[Any]],
+    path: str | Path | None = None,
+    reference: float | None = None,
+) -> plt.Figure:
+    """Reward / VNS of every sweep combination against each swept key (one panel per key
+    with more than one value): one jittered dot per combination, the mean per value.
+
+    Args: results: [R] rows with ``settings`` (key -> value) and ``reward_ratio``; grid:
+    key -> list of values (the panel's x positions, in grid order); reference: a horizontal
+    line (e.g. greedy insertion's ratio on the same instances).
+    """
+    keys = [k for k in grid if len(grid[k]) > 1] or list(grid)
+    fig, axes = plt.subplots(
+        1, len(keys), figsize=(3.0 * len(keys) + 0.6, 3.2), dpi=110, sharey=True, squeeze=False
+    )
+    ratios = np.asarray([r["reward_ratio"] for r in results], float)
+    rng = np.random.default_rng(0)  # horizontal jitter only, so equal points stay visible
+    for ax, key in zip(axes[0], keys, strict=True):
+        values = list(grid[key])
+        pos = np.asarray([values.index(r["settings"][key]) for r in results], float)
+        ax.scatter(pos + rng.uniform(-0.12, 0.12, len(pos)), ratios, s=18, alpha=0.7,
+                   color=BLUE, edgecolor="black", lw=0.4, zorder=3)  # fmt: skip
+        means = [ratios[pos == i].mean() for i in range(len(values))]
+        ax.plot(range(len(values)), means, color=RED, marker="_", ms=18, lw=1.2,
+                label="mean", zorder=4)  # fmt: skip
+        if reference is not None:
+            ax.axhline(reference, color="grey", ls="--", lw=1, label="greedy insertion")
+        ax.set_xticks(range(len(values)), [str(v) for v in values], fontsize=8)
+        style_axes(ax, xlabel=key, grid="y")
+    style_axes(axes[0][0], ylabel="reward / VNS (greedy + 2-opt)",
+               legend={"fontsize": 7, "loc": "best"})  # fmt: skip
+    fig.suptitle(f"Sweep: {len(results)} combinations", fontsize=10)
+    return finish(fig, path)
