@@ -26,6 +26,7 @@ from typing import Any
 
 import orbax.checkpoint as ocp
 
+from bfsop_jax import files
 from bfsop_jax.parallel import barrier, is_primary
 
 __all__ = [
@@ -175,10 +176,7 @@ def write_config(run_dir: str | os.PathLike, config: dict[str, Any]) -> None:
     only process 0 writes."""
     if not is_primary():
         return
-    path = Path(run_dir) / CONFIG_FILE
-    tmp = path.with_name(CONFIG_FILE + ".tmp")
-    tmp.write_text(json.dumps(config, indent=1, sort_keys=True))
-    os.replace(tmp, path)
+    files.write_json(Path(run_dir) / CONFIG_FILE, config)
 
 
 def read_config(run_dir: str | os.PathLike) -> dict[str, Any]:

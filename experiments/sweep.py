@@ -39,6 +39,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from bfsop_jax import files
 from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import pose_tasks
 from bfsop_jax.eval import solvers as solver_eval
@@ -95,11 +96,8 @@ def _mesh(devices: int | None):
 
 
 def _atomic_json(obj: Any, path: Path) -> None:
-    if not is_primary():  # one writer in a multi-host run
-        return
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    if is_primary():  # one writer in a multi-host run
+        files.write_json(path, obj)
 
 
 # -- held-out instances and their teacher plans (cached) --------------------------------------
@@ -132,9 +130,7 @@ def _eval_set(args, preset: distill.DistillPreset, out: Path, progress: bool):
         vns_ms=np.asarray(teacher[1], np.float64),
         key=np.asarray(json.dumps(key)),
     )
-    tmp = path.with_name("eval_set.tmp.npz")
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
+    files.atomic_write(path, lambda f: np.savez(f, **arrays), mode="wb")
     return (instances, teacher), key
 
 
@@ -262,9 +258,7 @@ def write_outputs(results: list[dict[str, Any]], grid: Grid, out: Path, header: 
     writer.writerow([*COLUMNS, *keys])
     for r in ranked:
         writer.writerow([r[c] for c in COLUMNS] + [r["settings"][k] for k in keys])
-    tmp = out / "sweep.csv.tmp"
-    tmp.write_text(buf.getvalue())
-    os.replace(tmp, out / "sweep.csv")
+    files.write_text(out / "sweep.csv", buf.getvalue())
 
     def f(x, digits=3):
         return "-" if x is None else f"{x:.{digits}f}"
@@ -289,9 +283,7 @@ def write_outputs(results: list[dict[str, Any]], grid: Grid, out: Path, header: 
     greedy = ranked[0]["greedy_insertion_ratio"] if ranked else None
     lines += ["", f"Greedy insertion on the same instances: {f(greedy)} of the VNS."]
     text = "\n".join(lines) + "\n"
-    tmp = out / "sweep.md.tmp"
-    tmp.write_text(text)
-    os.replace(tmp, out / "sweep.md")
+    files.write_text(out / "sweep.md", text)
     from bfsop_jax.viz import plot_sweep
 
     plot_sweep(ranked, grid, out / "sweep.png", reference=greedy)

@@ -35,7 +35,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from bfsop_jax import metrics
+from bfsop_jax import files, metrics
 from bfsop_jax.agents import (
     BFSOP,
     FBE,
@@ -388,14 +388,8 @@ def _episode_records(
 # -- the evaluation ------------------------------------------------------------------------
 
 
-def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
 def _write_json(path: Path, obj: Any) -> None:
-    _atomic_write(path, lambda p: p.write_text(json.dumps(obj, indent=1) + "\n"))
+    files.write_json(path, obj, sort_keys=False)
 
 
 def _planner_latency_ms(
@@ -538,9 +532,9 @@ def evaluate_navigation(
                 runner,
             )  # fmt: skip
             first_final = take(final) if first_final is None else first_final
-            _atomic_write(
+            files.atomic_write(
                 out / "episodes" / f"{method}_{j:03d}.npz",
-                lambda p, paths=paths: np.savez_compressed(open(p, "wb"), **paths),
+                lambda f, paths=paths: np.savez_compressed(f, **paths), mode="wb",
             )
             _write_json(done_file, {"episodes": records, "wall_s": wall})
             method_records.extend(records)
@@ -672,7 +666,7 @@ def write_table1(result: dict[str, Any], path: str | os.PathLike, header: str = 
                 f"| {ratio:.2f}x |"
             )
     text = "\n".join(lines) + "\n"
-    _atomic_write(Path(path), lambda p: p.write_text(text))
+    files.write_text(path, text)
     return text
 
 

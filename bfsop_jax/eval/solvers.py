@@ -25,17 +25,16 @@ each quintile is averaged over all steps, and over the first step alone.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import statistics
 import time
-from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
 from tqdm import tqdm
 
+from bfsop_jax import files
 from bfsop_jax.sop import Solution, SOPInstance, solve_greedy, solve_vns
 from bfsop_jax.viz import plot_distance_mass, plot_tour_comparison  # re-exported: drawn in viz
 
@@ -229,10 +228,7 @@ class SolverEvaluation:
 
 def write_json(result: dict[str, Any], path: str | os.PathLike) -> None:
     """Write an evaluation summary (``SolverEvaluation.summary``) atomically."""
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    files.write_json(path, result)
 
 
 def _fmt(x: float, digits: int = 2) -> str:
@@ -306,10 +302,7 @@ def write_tables(
                 f"| {_fmt(row['mean_cost'])} |"
             )
     text = "\n".join(lines) + "\n"
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    files.write_text(path, text)
     return text
 
 

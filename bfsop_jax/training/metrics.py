@@ -17,6 +17,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from bfsop_jax import files
 from bfsop_jax.model.decode import TeacherForcing
 from bfsop_jax.parallel import is_primary
 from bfsop_jax.viz import plot_training_curve  # re-exported: drawn in viz
@@ -89,15 +90,13 @@ class MetricsLog:
     def _rewrite(self) -> None:
         if not is_primary():  # one writer in a multi-host run
             return
-        tmp = self.jsonl.with_suffix(".jsonl.tmp")
-        tmp.write_text("".join(json.dumps(r) + "\n" for r in self.rows))
-        os.replace(tmp, self.jsonl)
+        files.write_text(self.jsonl, "".join(json.dumps(r) + "\n" for r in self.rows))
         self._write_csv()
 
     def _write_csv(self) -> None:
-        tmp = self.csv.with_suffix(".csv.tmp")
-        with tmp.open("w", newline="") as f:
+        def write(f):
             writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
             writer.writeheader()
             writer.writerows(self.rows)
-        os.replace(tmp, self.csv)
+
+        files.atomic_write(self.csv, write)

@@ -18,6 +18,8 @@ if "MPLBACKEND" not in os.environ:
 
 import matplotlib.pyplot as plt  # noqa: E402
 
+from bfsop_jax.files import atomic_write  # noqa: E402
+
 __all__ = [
     "AGENT_COLOUR",
     "BLUE",
@@ -87,14 +89,12 @@ def save(
     file next to it, then a rename), creating the folder; ``tight_bbox`` crops to the drawn
     content."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    try:
-        bbox = "tight" if tight_bbox else None
-        fig.savefig(tmp, dpi=fig.dpi if dpi is None else dpi, bbox_inches=bbox)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    bbox = "tight" if tight_bbox else None
+    kind = path.suffix.lstrip(".") or "png"
+    dpi = fig.dpi if dpi is None else dpi
+    atomic_write(
+        path, lambda f: fig.savefig(f, format=kind, dpi=dpi, bbox_inches=bbox), mode="wb"
+    )
     return path
 
 

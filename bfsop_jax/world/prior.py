@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from bfsop_jax import files
 from bfsop_jax.world.constants import CATEGORY_NAMES, N_CATEGORIES, N_TARGETS, TARGET_NAMES
 from bfsop_jax.world.types import House
 
@@ -90,13 +90,7 @@ def save_prior(path: str | os.PathLike, prior: np.ndarray, meta: dict | None = N
         },
         "meta": meta or {},
     }
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(doc, f, indent=1)
-    os.chmod(tmp, 0o644)  # mkstemp creates owner-only files
-    os.replace(tmp, path)
+    files.atomic_write(path, lambda f: json.dump(doc, f, indent=1))
 
 
 def load_prior(path: str | os.PathLike) -> np.ndarray:
