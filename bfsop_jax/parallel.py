@@ -29,6 +29,7 @@ __all__ = [
     "barrier",
     "is_primary",
     "data_mesh",
+    "first_devices_mesh",
     "initialize",
     "mesh_size",
     "place",
@@ -63,6 +64,17 @@ def data_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
     if not devices:
         raise ValueError("data_mesh needs at least one device")
     return Mesh(np.asarray(devices, dtype=object), (DATA_AXIS,))
+
+
+def first_devices_mesh(count: int | None, local: bool = False) -> Mesh | None:
+    """A mesh over the first ``count`` devices (all by default; ``local``: this process's
+    only), or None when that is one device (the single-device path); ValueError naming
+    ``--devices`` when ``count`` is out of range."""
+    available = jax.local_devices() if local else jax.devices()
+    n = len(available) if count is None else count
+    if not 1 <= n <= len(available):
+        raise ValueError(f"--devices must be in [1, {len(available)}], got {count}")
+    return data_mesh(available[:n]) if n > 1 else None
 
 
 def mesh_size(mesh: Mesh) -> int:

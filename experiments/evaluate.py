@@ -79,15 +79,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def _mesh(devices: int | None):
     """A mesh over the first ``devices`` local devices (all by default); None for one."""
-    import jax
+    from bfsop_jax.parallel import first_devices_mesh
 
-    from bfsop_jax.parallel import data_mesh
-
-    local = jax.local_devices()
-    n = len(local) if devices is None else devices
-    if not 1 <= n <= len(local):
-        _fail(f"--devices must be in [1, {len(local)}], got {devices}")
-    return data_mesh(local[:n]) if n > 1 else None
+    try:
+        return first_devices_mesh(devices, local=True)
+    except ValueError as err:
+        _fail(str(err))
 
 
 def _fail(message: str) -> None:

@@ -43,7 +43,7 @@ from bfsop_jax import files
 from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import pose_tasks
 from bfsop_jax.eval import solvers as solver_eval
-from bfsop_jax.parallel import barrier, data_mesh, initialize, is_primary, mesh_size
+from bfsop_jax.parallel import barrier, first_devices_mesh, initialize, is_primary, mesh_size
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.sop.types import Solution, plan_length
 from bfsop_jax.training import train
@@ -85,14 +85,6 @@ def _grid(args, base) -> Grid:
     if not parts:
         raise ValueError("no grid: give --grid KEY=V1,V2 (repeatable) or --grid-file FILE")
     return merge_grids(*parts, base=base)
-
-
-def _mesh(devices: int | None):
-    available = jax.devices()
-    n = len(available) if devices is None else devices
-    if not 1 <= n <= len(available):
-        raise ValueError(f"--devices must be in [1, {len(available)}], got {devices}")
-    return data_mesh(available[:n]) if n > 1 else None
 
 
 def _atomic_json(obj: Any, path: Path) -> None:
@@ -301,7 +293,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     grid = _grid(args, base)  # every grid error comes before any work
     if "epochs" in grid and args.epochs is not None:
         raise ValueError("grid key 'epochs' and --epochs both set the run length; give one")
-    mesh = _mesh(args.devices)
+    mesh = first_devices_mesh(args.devices)
     out = Path(args.out or f"runs/sweep-{args.preset}")
     data_dir = Path(args.data_dir or f"data/distill-{args.preset}")
     out.mkdir(parents=True, exist_ok=True)
