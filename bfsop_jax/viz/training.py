@@ -16,7 +16,9 @@ __all__ = ["plot_training_curve"]
 def plot_training_curve(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> None:
     """Two panels, loss (cross-entropy per step) and next-node accuracy per epoch: one colour
     per replica, train solid, validation dashed (drawn when every epoch has it); replicas are
-    labelled by seed and learning rate when there are several. Nothing is written for no rows.
+    labelled by replica index (replicas may differ in more than seed and learning rate, see
+    the run's config.json), seed and learning rate when there are several. Nothing is
+    written for no rows.
 
     Args: rows: the log rows (``epoch``, ``replica``, ``seed``, ``base_lr``, ``train_loss``,
     ``train_acc`` and optional ``val_loss``, ``val_acc``), in any order.
@@ -28,7 +30,11 @@ def plot_training_curve(rows: Sequence[Mapping[str, Any]], path: str | os.PathLi
     for rep in replicas:
         mine = sorted((r for r in rows if r["replica"] == rep), key=lambda r: r["epoch"])
         epochs = [r["epoch"] for r in mine]
-        label = f"seed {mine[0]['seed']}, lr {mine[0]['base_lr']:.0e}" if len(replicas) > 1 else ""
+        label = (
+            f"#{rep}: seed {mine[0]['seed']}, lr {mine[0]['base_lr']:.0e}"
+            if len(replicas) > 1
+            else ""
+        )
         for ax, key in ((ax_loss, "loss"), (ax_acc, "acc")):
             (line,) = ax.plot(epochs, [r[f"train_{key}"] for r in mine], label=f"train {label}")
             val = [r.get(f"val_{key}") for r in mine]
