@@ -13,7 +13,10 @@ Options, each measurable on its own:
   budget gate only;
 * ``augment=True``: decode the 8 symmetries of the normalised coordinates (flips and quarter
   turns; costs unchanged) and keep the best plan after 2-opt and the gate;
-* ``best_of=k`` (k > 1): add k plans sampled from the decoder to the greedy one.
+* ``best_of=k`` (k > 1): add k plans sampled from the decoder to the greedy one;
+* ``multi_start=True`` (POMO-style): add one greedy rollout per set, each forced to make
+  its first move into that set (:func:`bfsop_jax.model.decode.decode`'s ``first_set``);
+* ``fill=True``: spend the budget a plan leaves unused by cheapest insertion.
 
 "Best" means the largest reward, then the smallest cost. Each (batch size, options)
 combination compiles once; later calls with the same shapes reuse the program.
@@ -39,11 +42,12 @@ from bfsop_jax.sop.two_opt import budget_gate, insertion_fill
 from bfsop_jax.sop.two_opt import two_opt as sop_two_opt
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length, validate
 
-__all__ = ["DEMO_POLICY_DIR", "TWO_OPT_ITERS", "StrategicPolicy"]
+__all__ = ["DEMO_POLICY_DIR", "MULTI_START_REFINE", "TWO_OPT_ITERS", "StrategicPolicy"]
 
 # The pretrained demo model shipped with the package (config.json + model/).
 DEMO_POLICY_DIR = Path(__file__).resolve().parent / "assets" / "policy_demo"
 TWO_OPT_ITERS = 100  # bounded 2-opt (docs/design.md §7.5)
+MULTI_START_REFINE = 4  # multi-start: plans per instance refined (greedy + 3 best others)
 
 
 class StrategicPolicy:
@@ -125,6 +129,7 @@ class StrategicPolicy:
         key: jax.Array | None = None,
         temperature: float = 1.0,
         fill: bool = False,
+        multi_start: bool = False,
     ) -> Solution:
         """Plan one instance (``set_id`` [n]) or a batch (``set_id`` [B, n]).
 
@@ -137,6 +142,8 @@ class StrategicPolicy:
             temperature: softmax temperature of the sampled plans.
             fill: after the budget gate, spend the unused budget by greedy cheapest
                 insertion of unvisited sets (:func:`bfsop_jax.sop.insertion_fill`).
+            multi_start: also decode one greedy rollout per set of the model's K, each
+                starting with a move into its set, and keep the best (K more rollouts).
 
         Returns:
             A feasible :class:`Solution` (``nodes`` [T] or [B, T] with T = plan_length(k),
@@ -158,6 +165,7 @@ class StrategicPolicy:
             augment=bool(augment),
             best_of=best_of,
             fill=bool(fill),
+            multi_start=bool(multi_start),
         )
         return _unpad(sol, k, single)
 
@@ -174,6 +182,7 @@ class StrategicPolicy:
         best_of: int = 1,
         temperature: float | jax.Array = 1.0,
         fill: bool = False,
+        multi_start: bool = False,
     ) -> Solution:
         """:meth:`plan` as a pure JAX function, to call inside the caller's ``jit``/``scan``.
 
@@ -202,6 +211,7 @@ class StrategicPolicy:
             bool(augment),
             int(best_of),
             bool(fill),
+            bool(multi_start),
         )
         return _unpad(sol, k, single)
 
@@ -237,14 +247,19 @@ def _trace_jit(params: Any, inst: SOPInstance, *, graphdef: nnx.GraphDef) -> Dec
 
 
 @functools.partial(
-    jax.jit, static_argnames=("graphdef", "use_two_opt", "augment", "best_of", "fill")
+    jax.jit,
+    static_argnames=("graphdef", "use_two_opt", "augment", "best_of", "fill", "multi_start"),
 )
-def _plan_jit(params, inst, key, temperature, *, graphdef, use_two_opt, augment, best_of, fill):
+def _plan_jit(
+    params, inst, key, temperature, *, graphdef, use_two_opt, augment, best_of, fill,
+    multi_start,
+):  # fmt: skip
     # compiled once per (model graph, batch size, options); the body is looked up at trace
     # time, which lets tests count traces
     return _plan_program(
-        graphdef, params, inst, key, temperature, use_two_opt, augment, best_of, fill
-    )
+        graphdef, params, inst, key, temperature, use_two_opt, augment, best_of, fill,
+        multi_start,
+    )  # fmt: skip
 
 
 def _plan_program(
@@ -257,28 +272,67 @@ def _plan_program(
     augment: bool,
     best_of: int,
     fill: bool = False,
+    multi_start: bool = False,
 ) -> Solution:
-    """Encode, decode (greedy, symmetries, samples), 2-opt, gate, keep the best; batch B."""
+    """Encode, decode (greedy, symmetries, samples, starts), 2-opt, gate, keep the best.
+
+    Candidates are laid out draw-major over ``views * B`` rows: the greedy plan, then the
+    ``best_of`` samples, then the K multi-start rollouts (all greedy).
+    """
     model = nnx.merge(graphdef, params)
     b = inst.set_id.shape[0]
+    k = inst.set_reward.shape[1]
     features = node_features(inst)
     views = 1
     if augment:  # [8, B, ...] -> [8B, ...], symmetry-major
         views = NUM_SYMMETRIES
         features = jax.tree_util.tree_map(_flatten2, symmetric_features(features))
     cache = model.prepare(features, _tile(inst.start, views))
-    draws = 1 + (best_of if best_of > 1 else 0)  # the greedy plan, then samples
+    samples = best_of if best_of > 1 else 0
+    starts = k if multi_start else 0
+    draws = 1 + samples + starts
+    rows = views * b
     cache = jax.tree_util.tree_map(lambda x: _tile(x, draws), cache)
+    features = jax.tree_util.tree_map(lambda x: _tile(x, draws), features)
     every = jax.tree_util.tree_map(lambda x: _tile(x, views * draws), inst)
-    greedy = jnp.arange(draws * views * b) < views * b
-    trace = decode(model, every, key, temperature, greedy, cache=cache)
+    draw = jnp.arange(draws * rows) // rows
+    greedy = (draw == 0) | (draw > samples)
+    first_set = None
+    if multi_start:
+        first_set = jnp.where(draw > samples, draw - samples - 1, -1).astype(jnp.int32)
+    trace = decode(
+        model, every, key, temperature, greedy, features=features, cache=cache,
+        first_set=first_set,
+    )  # fmt: skip
     sol = trace.solution
+    candidates = draws * views
+    if multi_start and candidates > MULTI_START_REFINE:
+        # refine only the greedy plan and the most promising other rollouts (ranked after
+        # the budget gate): refining all K + 1 would cost ~K times the 2-opt of one plan
+        ranked = budget_gate(every, sol)
+        rows = _top_candidates(ranked, candidates, b, MULTI_START_REFINE)
+        sol, every = (jax.tree_util.tree_map(lambda x: x[rows], t) for t in (sol, every))
+        candidates = MULTI_START_REFINE
     if use_two_opt:
         sol = sop_two_opt(every, sol, max_iters=TWO_OPT_ITERS)
     sol = budget_gate(every, sol)
     if fill:
         sol = insertion_fill(every, sol)
-    return _best(sol, draws * views, b)
+    return _best(sol, candidates, b)
+
+
+def _top_candidates(sol: Solution, candidates: int, b: int, keep: int) -> jax.Array:
+    """Rows of candidate 0 (the greedy plan) and, per instance, the ``keep - 1`` other
+    candidates with the largest reward, then the smallest cost.
+
+    ``sol`` leaves are [C * B, ...] candidate-major; returns [keep * B] row indices,
+    candidate-major too.
+    """
+    reward = sol.reward.reshape(candidates, b)[1:]
+    cost = sol.cost.reshape(candidates, b)[1:]
+    order = jnp.lexsort((cost, -reward), axis=0)[: keep - 1] + 1  # [keep - 1, B]
+    order = jnp.concatenate([jnp.zeros((1, b), order.dtype), order])
+    return (order * b + jnp.arange(b)[None]).reshape(-1)
 
 
 def _pad(inst: SOPInstance, num_nodes: int, num_sets: int, xp: Any = np) -> SOPInstance:

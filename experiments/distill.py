@@ -134,8 +134,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--preset", default="demo", choices=sorted(PRESETS))
     ap.add_argument("--out", default=None, help="run directory (default runs/distill-<preset>)")
     ap.add_argument(
-        "--stage", default=None, choices=["all", "data", "train", "eval"],
-        help="default: all (data with --merge-data)",
+        "--stage", default=None, choices=["all", "data", "train", "eval", "dagger"],
+        help="default: all (data with --merge-data); dagger: DAgger rounds from --checkpoint",
     )  # fmt: skip
     ap.add_argument(
         "--data-dir", default=None, help="dataset cache (default data/distill-<preset>)"
@@ -157,6 +157,14 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--ablations", action="store_true", help="also train the ablations")
     ap.add_argument("--eval-tasks", type=int, default=None, help="override: tasks per eval house")
     ap.add_argument("--no-navigation", action="store_true", help="skip the navigation stage")
+    ap.add_argument("--rounds", type=int, default=3, help="dagger: DAgger rounds")
+    ap.add_argument(
+        "--dagger-epochs", type=int, default=10, help="dagger: training epochs per round"
+    )
+    ap.add_argument(
+        "--dagger-categories", type=int, default=3,
+        help="dagger: episodes (target categories) per training house and round",
+    )  # fmt: skip
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     if args.stage is None:
@@ -372,6 +380,95 @@ def stage_navigation(args, preset: DistillPreset, out: Path, policy, checkpoint:
     return {"episodes": len(episodes), "methods": result["methods"]}
 
 
+def stage_dagger(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> list[dict]:
+    """DAgger rounds from the trained run ``--checkpoint`` (default ``--out``).
+
+    The student drives in the training houses of the training shards (validation houses
+    stay out); every round is judged on held-out instances (reward ratio to the VNS of
+    greedy + 2-opt and of multi-start + fill) and, unless ``--no-navigation``, by the PPL
+    of BF-SOP (Transformer) on the reduced navigation protocol's held-out episodes. The
+    rounds' models are never chosen on those figures: the last round is the result.
+    """
+    from bfsop_jax.config import get_preset
+    from bfsop_jax.eval import navigation as nav
+    from bfsop_jax.training.dagger import DaggerConfig, run_dagger
+    from bfsop_jax.world.constants import TARGET_NAMES, target_id
+
+    base = Path(args.checkpoint) if args.checkpoint else out
+    if not (base / "model").is_dir():
+        raise ValueError(f"--stage dagger needs a trained run in {base} (train it first)")
+    dagger = DaggerConfig(
+        rounds=args.rounds, epochs=args.dagger_epochs, categories_per_house=args.dagger_categories
+    )
+    train_ds, val_ds = _split(store, cfg, preset.val_houses)
+    n_val = max(1, -(-preset.val_houses // cfg.houses_per_shard)) if cfg.n_shards > 1 else 0
+    train_houses = min(cfg.houses, (cfg.n_shards - n_val) * cfg.houses_per_shard)
+    seeds = np.arange(cfg.seed_start, cfg.seed_start + train_houses)
+    dagger_dir = out / "dagger"
+
+    lo = EVAL_SEED_START
+    if args.eval_seeds:
+        rng = parse_seed_range(args.eval_seeds)
+        lo, hi = rng.start, rng.stop
+    else:
+        hi = lo + preset.eval_houses
+    eval_cfg = dataclasses.replace(cfg, tasks_per_house=args.eval_tasks or preset.eval_tasks)
+    instances, _ = pose_tasks(np.arange(lo, hi), eval_cfg, progress=not args.no_progress)
+    teacher = solver_eval.evaluate_teacher(instances, progress=not args.no_progress)
+    planners = {name: solver_eval.PLANNERS[name]
+                for name in ("transformer+2opt", "transformer+2opt+multi_start+fill")}  # fmt: skip
+    houses = nav.HouseSet(get_preset(cfg.preset))
+    ids = range(EVAL_SEED_START, EVAL_SEED_START + preset.nav_houses)
+    cats = [target_id(c) for c in preset.nav_categories] or list(range(len(TARGET_NAMES)))
+    episodes = nav.protocol_episodes(houses, ids, cats)
+
+    def evaluate(policy, r: int) -> dict[str, Any]:
+        ev = solver_eval.evaluate_solvers(policy, instances, planners=planners, repeats=1,
+                                          progress=False, teacher=teacher).summary  # fmt: skip
+        row: dict[str, Any] = {
+            f"reward_ratio[{name}]": ev["planners"][name]["reward_ratio"] for name in planners
+        }
+        row["reward_ratio[greedy_insertion]"] = (
+            ev["planners"]["greedy_insertion"]["mean_reward"] / ev["planners"]["vns"]["mean_reward"]
+        )
+        if not args.no_navigation and preset.nav_houses > 0:
+            res = nav.evaluate_navigation(
+                ["bfsop_st"], episodes, houses, dagger_dir / f"navigation-{r:02d}", policy=policy,
+                batch=len(episodes), progress=False,
+            )  # fmt: skip
+            m = res["methods"]["bfsop_st"]
+            row.update(ppl=m["ppl_mean"], ppl_ci95=m["ppl_ci95"], episodes=m["episodes"])
+        print(f"round {r}: " + ", ".join(f"{k} {v}" for k, v in row.items() if k != "ppl_ci95"))
+        return row
+
+    history = run_dagger(base, train_ds, val_ds, seeds, cfg, dagger_dir, dagger, evaluate,
+                         progress=not args.no_progress)  # fmt: skip
+    _dagger_report(history, dagger_dir)
+    return history
+
+
+def _dagger_report(history: list[dict[str, Any]], out: Path) -> None:
+    """``dagger.md`` (one row per round) and ``dagger.png`` (reward ratio and PPL)."""
+    from bfsop_jax.files import write_text
+    from bfsop_jax.viz import plot_dagger
+
+    keys = [k for k in history[0] if k.startswith("reward_ratio[")]
+    has_ppl = "ppl" in history[0]
+    head = ["round", "DAgger rows", "training rows", *[k[13:-1] for k in keys]]
+    head += ["PPL [95% CI]"] if has_ppl else []
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in history:
+        cells = [str(row["round"]), str(row["rows"]), str(row["aggregate"])]
+        cells += [f"{row[k]:.3f}" for k in keys]
+        if has_ppl:
+            lo, hi = row["ppl_ci95"]
+            cells.append(f"{row['ppl']:.3f} [{lo:.3f}, {hi:.3f}]")
+        lines.append("| " + " | ".join(cells) + " |")
+    write_text(out / "dagger.md", "\n".join(lines) + "\n")
+    plot_dagger(history, out / "dagger.png")
+    print("\n".join(lines))
+
+
 def _figures(policy, instances, evaluation, out: Path) -> None:
     """The tour comparison and the distance-mass figures (the mass is added to the
     evaluation's summary)."""
@@ -409,6 +506,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if args.stage != "data":
             ablations = stage_train(args, preset, store, cfg, out)
             summary["training"] = ablations
+    if args.stage == "dagger":
+        store, cfg = stage_data(args, preset, data_dir)
+        summary["dagger"] = stage_dagger(args, preset, store, cfg, out)
     if args.stage == "eval" and args.ablations:
         ablations = _trained_ablations(out if args.checkpoint is None else Path(args.checkpoint))
     if args.stage in ("all", "eval"):

@@ -10,7 +10,8 @@ import pytest
 from flax import nnx
 
 from bfsop_jax.config import EVAL_SEED_START
-from bfsop_jax.data.generate import DataConfig, pose_tasks
+from bfsop_jax.data.generate import SOURCE_STUDENT, DataConfig, pose_tasks
+from bfsop_jax.data.shards import ShardStore
 from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.model import ModelConfig, StrategicTransformer
 from bfsop_jax.policy import StrategicPolicy
@@ -126,6 +127,25 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     ev2 = json.loads((other / "solver_eval.json").read_text())
     assert ev2["house_seeds"] == [EVAL_SEED_START + 5, EVAL_SEED_START + 6]
     assert (other / "tables.md").is_file()
+
+    # DAgger: one round in which the trained student drives and the teacher labels
+    dagger = ["--preset", "smoke", "--stage", "dagger", "--out", str(run), "--data-dir",
+              str(data), "--rounds", "1", "--dagger-epochs", "1", "--dagger-categories", "1",
+              "--eval-tasks", "2", "--no-navigation", "--no-progress"]  # fmt: skip
+    history = distill.main(dagger)["dagger"]
+    assert [row["round"] for row in history] == [0, 1]
+    rows = ShardStore.open(run / "dagger" / "round-01" / "data").load()
+    assert len(rows["source"]) == history[1]["rows"] > 0
+    assert (rows["source"] == SOURCE_STUDENT).all()
+    assert (rows["house_seed"] < EVAL_SEED_START).all()  # training houses only
+    assert history[1]["aggregate"] == history[0]["aggregate"] + history[1]["rows"]
+    for name in ("dagger.json", "dagger.md", "dagger.png"):
+        assert (run / "dagger" / name).is_file(), name
+    model_dir = run / "dagger" / "round-01" / "run" / "model"
+    stamp = max(f.stat().st_mtime_ns for f in model_dir.rglob("*") if f.is_file())
+    again = distill.main(dagger)["dagger"]  # resumed: nothing relabelled or retrained
+    assert again[1]["rows"] == history[1]["rows"]
+    assert max(f.stat().st_mtime_ns for f in model_dir.rglob("*") if f.is_file()) == stamp
 
 
 def test_distill_rejects_bad_arguments(tmp_path, capsys):

@@ -15,9 +15,11 @@ from bfsop_jax.model import (
     StrategicTransformer,
     decode,
     node_features,
+    step_features,
     symmetric_features,
     teacher_forced_logits,
 )
+from bfsop_jax.model.features import BUDGET_CLIP, FAR, NUM_STEP_FEATURES
 from bfsop_jax.sop import SOPInstance, evaluate
 from bfsop_jax.sop.io import random_instance
 
@@ -221,13 +223,21 @@ def test_encoder_is_permutation_equivariant(model, batch):
     np.testing.assert_allclose(encode(model, permuted), encode(model, batch)[:, perm], atol=1e-5)
 
 
-@pytest.mark.parametrize(("budget_aware", "budget_mask"), [(False, False), (True, False),
-                                                           (False, True)])  # fmt: skip
-def test_teacher_forcing_matches_decoding(batch, budget_aware, budget_mask):
+@pytest.mark.parametrize(
+    ("budget_aware", "budget_mask", "step"),
+    [(False, False, False), (True, False, False), (False, True, False), (False, True, True)],
+)
+def test_teacher_forcing_matches_decoding(batch, budget_aware, budget_mask, step):
     """Feeding a model its own greedy plans as teacher gives the decoder's step
-    distributions, and every target is the arg-max (masks and budget agree in both paths)."""
-    config = dataclasses.replace(TINY, budget_aware=budget_aware, budget_mask=budget_mask)
+    distributions, and every target is the arg-max (masks, budget and step features agree
+    in both paths)."""
+    config = dataclasses.replace(
+        TINY, budget_aware=budget_aware, budget_mask=budget_mask, step_features=step
+    )
     model = untrained(config, 5)
+    if step:  # the MLP's output layer starts at zero: give it weights
+        out = model.decoder.step_out.kernel
+        out[...] = jax.random.normal(jax.random.key(7), out.shape)
     trace = run_decode(model, batch)
     g, p = _split(model)
     tf = _teacher(p, batch, trace.solution.nodes, graphdef=g)
@@ -284,3 +294,59 @@ def test_config_validation():
     with pytest.raises(ValueError, match="unknown ModelConfig keys"):
         ModelConfig.from_dict({"d_model": 32, "depth": 3})
     assert ModelConfig.from_dict(TINY.to_dict()) == TINY
+
+
+def test_step_features_values(batch):
+    """Each step feature against its definition, for a few (last node, cost so far) states."""
+    inst = batch
+    feats = node_features(inst)
+    b, n = inst.set_id.shape
+    last = jnp.asarray(np.stack([np.arange(b) % n, (np.arange(b) + 3) % n], 1), jnp.int32)
+    travelled = jnp.asarray(np.stack([np.zeros(b), 0.5 * np.asarray(inst.budget)], 1), jnp.float32)
+    out = np.asarray(step_features(inst, feats, last, travelled))
+    assert out.shape == (b, 2, n, NUM_STEP_FEATURES)
+    cost, scale = np.asarray(inst.cost), np.asarray(feats.cost_scale)
+    valid = np.asarray(feats.valid)
+    for i in range(b):
+        end = int(inst.end[i])
+        for s in range(2):
+            row = out[i, s][valid[i]]
+            c = cost[i, int(last[i, s])][valid[i]]
+            d = np.where(np.isfinite(c), np.minimum(c / scale[i], FAR), FAR)
+            np.testing.assert_allclose(row[:, 0], d, rtol=1e-5)
+            e = (
+                np.zeros_like(d)
+                if end < 0
+                else np.minimum(cost[i, :, end][valid[i]] / scale[i], FAR)
+            )
+            np.testing.assert_allclose(row[:, 1], e, rtol=1e-5)
+            left = np.clip(
+                (float(inst.budget[i]) - float(travelled[i, s])) / scale[i], 0, BUDGET_CLIP
+            )
+            np.testing.assert_allclose(row[:, 2], left, rtol=1e-5)
+            np.testing.assert_allclose(row[:, 3], np.clip(left - d - e, -1, BUDGET_CLIP), atol=1e-5)
+            np.testing.assert_allclose(row[:, 5], np.asarray(feats.nodes[i, :, 2])[valid[i]])
+        assert (out[i, :, ~valid[i]] == 0).all()  # padding nodes
+
+
+def test_first_set_forces_the_first_move(batch):
+    """Multi-start decoding: a row's first move goes into its ``first_set`` whenever that
+    set has an allowed node; otherwise (blocked set, -1) the move is the free greedy one."""
+    model = untrained(dataclasses.replace(TINY, budget_mask=True), 5)
+    g, p = _split(model)
+    b, k = batch.set_id.shape[0], batch.set_reward.shape[1]
+    free = run_decode(model, batch)
+    for target in range(-1, k):
+        first = jnp.full((b,), target, jnp.int32)
+        trace = jax.jit(
+            lambda params, inst, first: decode(nnx.merge(g, params), inst, first_set=first)
+        )(p, batch, first)
+        nodes = np.asarray(trace.solution.nodes)
+        allowed0 = np.asarray(free.allowed)[:, 0, :-1]
+        for i in range(b):
+            check_plan(batch[i], nodes[i])
+            in_set = allowed0[i] & (np.asarray(batch.set_id[i]) == target)
+            if target >= 0 and in_set.any():
+                assert int(batch.set_id[i, nodes[i, 1]]) == target
+            else:
+                np.testing.assert_array_equal(nodes[i], np.asarray(free.solution.nodes)[i])

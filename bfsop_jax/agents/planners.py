@@ -101,15 +101,19 @@ class TransformerPlanner:
 
     ``policy`` is a :class:`bfsop_jax.policy.StrategicPolicy`; under ``jax.vmap`` the
     whole batch is planned in one forward pass. Hashed by identity (the policy's weights).
+    The options are those of :meth:`~bfsop_jax.policy.StrategicPolicy.plan`.
     """
 
     policy: Any
     two_opt: bool = True
     augment: bool = False
     best_of: int = 1
+    fill: bool = False
+    multi_start: bool = False
     name: str = "transformer"
 
     def __call__(self, mask: jax.Array, instance: SOPInstance) -> Solution:
         return self.policy.plan_traced(
-            instance, two_opt=self.two_opt, augment=self.augment, best_of=self.best_of
-        )
+            instance, two_opt=self.two_opt, augment=self.augment, best_of=self.best_of,
+            fill=self.fill, multi_start=self.multi_start,
+        )  # fmt: skip

@@ -14,13 +14,15 @@ One record per instance, fixed shapes per preset (N nodes, K sets, T = K + 1):
 ``coords [N, 2]``, ``cost [N, N]``, ``set_id [N]``, ``set_reward [K]``, ``budget []``,
 ``teacher_nodes [T]`` (start first, -1 padded), ``teacher_reward []``,
 ``teacher_cost []``, plus provenance ``house_seed``, ``category``, ``source``
-(0 = virtual task, 1 = on-trajectory decision).
+(0 = virtual task, 1 = on-trajectory decision, 2 = a decision of the student's own
+episode, labelled afterwards: the DAgger rows of :func:`student_records`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from pathlib import Path
 
 import jax
@@ -48,16 +50,20 @@ from bfsop_jax.world.prior import default_prior
 __all__ = [
     "DataConfig",
     "SOURCE_ON_TRAJECTORY",
+    "SOURCE_STUDENT",
     "SOURCE_VIRTUAL",
     "explore",
     "generate_dataset",
     "label_virtual_tasks",
     "pose_tasks",
+    "shard_records",
+    "student_records",
     "virtual_tasks",
 ]
 
 SOURCE_VIRTUAL = 0
 SOURCE_ON_TRAJECTORY = 1
+SOURCE_STUDENT = 2  # DAgger: the decisions of a BF-SOP episode planned by the student
 
 
 @dataclasses.dataclass(frozen=True)
@@ -300,38 +306,176 @@ def generate_dataset(
         return store
 
     prior = jnp.asarray(default_prior())
-    gen = _generate_houses
-    run = jax.jit(explore, static_argnums=4)
-    label = jax.jit(label_virtual_tasks, static_argnums=(3, 4))
-    decide = jax.jit(on_trajectory_decisions, static_argnums=(4, 5))
     bar = tqdm(total=len(todo) * config.houses_per_shard, desc="dataset", unit="house",
                disable=not progress)  # fmt: skip
     for s in todo:
         lo = config.seed_start + s * config.houses_per_shard
         seeds = np.arange(lo, min(lo + config.houses_per_shard, config.seed_start + config.houses))
-        keys, houses, states = _explored(seeds, preset, config, prior, gen, run)
-        parts = []
-        for j, seed in enumerate(seeds):
-            state = jax.tree_util.tree_map(lambda a, j=j: a[j], states)
-            task_key = jax.random.fold_in(keys[j], 2)
-            vns_seeds = jnp.arange(config.tasks_per_house, dtype=jnp.int32) + int(seed) * 1000
-            inst, cats, labels = label(task_key, state, vns_seeds, preset, config)
-            parts.append(_records(inst, cats, labels, np.full(len(cats), seed), SOURCE_VIRTUAL))
-            if config.on_trajectory:
-                cat = _present_category(houses, j, jax.random.fold_in(keys[j], 3))
-                inst, plans, switched = decide(keys[j], state.house, cat, prior, preset, config)
-                sel = np.asarray(switched)
-                inst, plans = jax.tree_util.tree_map(
-                    lambda a, sel=sel: np.asarray(a)[sel], (inst, plans)
-                )
-                n = int(sel.sum())
-                parts.append(
-                    _records(inst, np.full(n, cat), plans, np.full(n, seed), SOURCE_ON_TRAJECTORY)
-                )
-            bar.update(1)
-        arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        arrays = shard_records(seeds, preset, config, prior)
         info = {"house_seeds": [int(seeds[0]), int(seeds[-1])]}
         info["vns_config"] = config.vns_config.to_dict()  # how the teacher labelled the shard
         store.write(s, arrays, info)
+        bar.update(len(seeds))
     bar.close()
     return store
+
+
+# jitted once per (preset, config): the whole shard's houses in one program per stage
+_explore_jit = jax.jit(explore, static_argnums=4)
+
+
+def _label_houses(
+    keys: jax.Array, states: EnvState, seeds: jax.Array, preset: Preset, config: DataConfig
+) -> tuple[SOPInstance, jax.Array, Solution]:
+    """Virtual tasks of H final maps (``seeds`` [H, T]), labelled by one callback of H*T rows."""
+    h, t = seeds.shape
+    instances, categories = jax.vmap(virtual_tasks, in_axes=(0, 0, None, None, None))(
+        keys, states, t, preset, config
+    )
+    instances = jax.tree_util.tree_map(lambda a: a.reshape((h * t,) + a.shape[2:]), instances)
+    labels = vns_callback(instances, seeds.reshape(-1), config=config.vns_config)
+    return instances, categories.reshape(-1), labels
+
+
+_label_jit = jax.jit(_label_houses, static_argnums=(3, 4))
+_decide_jit = jax.jit(
+    jax.vmap(on_trajectory_decisions, in_axes=(0, 0, 0, None, None, None)), static_argnums=(4, 5)
+)
+
+
+def shard_records(
+    seeds: np.ndarray,
+    preset: Preset,
+    config: DataConfig,
+    prior: jax.Array,
+    timings: dict[str, float] | None = None,
+) -> dict[str, np.ndarray]:
+    """The dataset records of the houses ``seeds`` [H], every stage batched over them.
+
+    Stages: house generation and exploration runs (one vmapped program), virtual tasks
+    posed on all H final maps and labelled by one VNS callback over all H * tasks rows,
+    then (``config.on_trajectory``) H BF-SOP (VNS) episodes side by side, the teacher
+    solving only the rows that switch to exploitation at a step. ``timings``, if given,
+    receives the wall seconds of each stage (``explore``, ``virtual``, ``on_trajectory``).
+    """
+    clock = time.perf_counter()
+
+    def lap(name: str, value):
+        nonlocal clock
+        jax.block_until_ready(value)
+        now = time.perf_counter()
+        if timings is not None:
+            timings[name] = timings.get(name, 0.0) + now - clock
+        clock = now
+        return value
+
+    seeds = np.asarray(seeds, np.int64)
+    keys, houses, states = lap(
+        "explore", _explored(seeds, preset, config, prior, _generate_houses, _explore_jit)
+    )
+    task_keys = jax.vmap(lambda k: jax.random.fold_in(k, 2))(keys)
+    vns_seeds = (
+        np.arange(config.tasks_per_house, dtype=np.int32)[None] + seeds[:, None].astype(np.int32)
+        * 1000
+    )  # fmt: skip
+    inst, cats, labels = lap(
+        "virtual", _label_jit(task_keys, states, jnp.asarray(vns_seeds), preset, config)
+    )
+    owner = np.repeat(seeds, config.tasks_per_house)
+    parts = [_records(inst, cats, labels, owner, SOURCE_VIRTUAL)]
+    if config.on_trajectory:
+        cat = np.array([
+            _present_category(houses, j, jax.random.fold_in(keys[j], 3))
+            for j in range(len(seeds))
+        ], np.int32)  # fmt: skip
+        inst, plans, switched = lap(
+            "on_trajectory",
+            _decide_jit(keys, states.house, jnp.asarray(cat), prior, preset, config),
+        )
+        sel = np.asarray(switched).reshape(-1)  # [H * steps]: the exploitation decisions
+        steps = np.shape(switched)[1]
+        inst, plans = jax.tree_util.tree_map(
+            lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[sel], (inst, plans)
+        )
+        parts.append(
+            _records(inst, np.repeat(cat, steps)[sel], plans, np.repeat(seeds, steps)[sel],
+                     SOURCE_ON_TRAJECTORY)
+        )  # fmt: skip
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _student_episodes(keys, houses, categories, prior, preset: Preset, planner):
+    """BF-SOP episodes planned by ``planner`` (batched): ``(instances [E, S], planned [E, S])``."""
+    n_steps = max_macro_steps(preset.budget_m, preset)
+
+    def one(key, house, category):
+        state = reset(key, house, category, preset, prior)
+        _, traj = rollout(state, BFSOP(planner=planner, record=True), preset, n_steps)
+        return traj.record[0], traj.planned
+
+    return jax.vmap(one)(keys, houses, categories)
+
+
+_student_jit = jax.jit(_student_episodes, static_argnums=(4, 5))
+
+
+def student_records(
+    seeds: np.ndarray,
+    planner,
+    preset: Preset,
+    config: DataConfig,
+    prior: jax.Array,
+    episode_salt: int = 0,
+    categories_per_house: int = 3,
+    timings: dict[str, float] | None = None,
+) -> dict[str, np.ndarray]:
+    """DAgger records: the student plans BF-SOP episodes, the teacher labels its decisions.
+
+    For every house of ``seeds`` [H], up to ``categories_per_house`` target categories
+    present in it (drawn at random) give one episode each, all run side by side with
+    ``planner`` (e.g. :class:`~bfsop_jax.agents.TransformerPlanner` of the current
+    student) choosing the tours. Every instance the student planned on its own online
+    map is then labelled by the VNS (``config.vns_config``, on all CPU cores, host-side:
+    only these rows pay for the teacher). ``episode_salt`` varies the start poses, so
+    rounds see new situations in the same training houses.
+
+    Returns:
+        Dataset records with ``source`` :data:`SOURCE_STUDENT`.
+    """
+    from bfsop_jax.sop.callback import solve_vns_batch  # host-side labelling
+
+    clock = time.perf_counter()
+    seeds = np.asarray(seeds, np.int64)
+    keys = jax.vmap(jax.random.key)(jnp.asarray(seeds))
+    houses = _generate_houses(keys, preset)
+    pairs = []
+    for j, seed in enumerate(seeds):
+        cats = np.asarray(houses.object_category[j])
+        present = np.unique(cats[(cats >= 0) & (cats < N_TARGETS)])
+        rng = np.random.default_rng([int(seed), int(episode_salt)])
+        for cat in rng.permutation(present)[:categories_per_house]:
+            pairs.append((j, int(cat)))
+    if not pairs:
+        raise ValueError(f"houses {seeds.tolist()} hold no target category")
+    rows = np.array([p[0] for p in pairs])
+    cats = np.array([p[1] for p in pairs], np.int32)
+    ep_keys = jax.vmap(
+        lambda k, c: jax.random.fold_in(jax.random.fold_in(k, 100 + episode_salt), c)
+    )(keys[rows], jnp.asarray(cats))
+    ep_houses = jax.tree_util.tree_map(lambda a: a[rows], houses)
+    inst, planned = _student_jit(ep_keys, ep_houses, jnp.asarray(cats), prior, preset, planner)
+    jax.block_until_ready(planned)
+    now = time.perf_counter()
+    if timings is not None:
+        timings["student_episodes"] = timings.get("student_episodes", 0.0) + now - clock
+    sel = np.asarray(planned).reshape(-1)
+    steps = np.shape(planned)[1]
+    inst = jax.tree_util.tree_map(
+        lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[sel], inst
+    )
+    vns_seeds = np.flatnonzero(sel).astype(np.int64) + 7919 * int(episode_salt)
+    labels = solve_vns_batch(inst, vns_seeds, config=config.vns_config)
+    if timings is not None:
+        timings["labelling"] = timings.get("labelling", 0.0) + time.perf_counter() - now
+    return _records(inst, np.repeat(cats, steps)[sel], labels,
+                    np.repeat(seeds[rows], steps)[sel], SOURCE_STUDENT)  # fmt: skip

@@ -60,6 +60,8 @@ PLANNERS: dict[str, dict[str, Any]] = {
     "transformer+2opt+augment+fill": {"two_opt": True, "augment": True, "fill": True},
     "transformer+2opt+best_of_2+fill": {"two_opt": True, "best_of": 2, "fill": True},
     "transformer+2opt+best_of_4+fill": {"two_opt": True, "best_of": 4, "fill": True},
+    "transformer+2opt+multi_start": {"two_opt": True, "multi_start": True},
+    "transformer+2opt+multi_start+fill": {"two_opt": True, "multi_start": True, "fill": True},
     "transformer+2opt+all": {"two_opt": True, "augment": True, "best_of": 8, "fill": True},
 }
 

@@ -13,7 +13,12 @@ from bfsop_jax.model.decode import (
     sample_decode,
     teacher_forced_logits,
 )
-from bfsop_jax.model.features import NodeFeatures, node_features, symmetric_features
+from bfsop_jax.model.features import (
+    NodeFeatures,
+    node_features,
+    step_features,
+    symmetric_features,
+)
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 
 __all__ = [
@@ -28,6 +33,7 @@ __all__ = [
     "node_features",
     "plan_value",
     "sample_decode",
+    "step_features",
     "symmetric_features",
     "teacher_forced_logits",
 ]

@@ -21,7 +21,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from bfsop_jax.model.features import NodeFeatures, node_features, normalised_budget
+from bfsop_jax.model.features import (
+    NodeFeatures,
+    node_features,
+    normalised_budget,
+    step_features,
+)
 from bfsop_jax.model.transformer import DecoderCache, StrategicTransformer
 from bfsop_jax.sop.rules import (
     advance,
@@ -108,7 +113,10 @@ def teacher_forced_logits(
             instance.budget[:, None] - travelled, features.cost_scale[:, None]
         )
 
-    scores = model.decoder(cache, safe_last, allowed, budget_left)
+    step = None
+    if model.config.step_features:
+        step = step_features(instance, features, safe_last, travelled)
+    scores = model.decoder(cache, safe_last, allowed, budget_left, step)
     return TeacherForcing(
         log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=valid, allowed=allowed
     )
@@ -122,6 +130,7 @@ def decode(
     greedy: jax.Array | bool = True,
     features: NodeFeatures | None = None,
     cache: DecoderCache | None = None,
+    first_set: jax.Array | None = None,
 ) -> DecodeTrace:
     """Decode plans step by step (``lax.scan`` over S = K steps, vectorised over B).
 
@@ -133,7 +142,11 @@ def decode(
         greedy: bool or [B] bool, rows that take the arg-max instead of sampling.
         features: precomputed :func:`node_features` (e.g. a coordinate symmetry).
         cache: precomputed ``model.prepare(features, instance.start)``, to decode one
-            encoding several times (then ``features`` is not used).
+            encoding several times (then ``features`` is only used for the step
+            features; their costs and rewards do not depend on the coordinate symmetry).
+        first_set: [B] int32, multi-start decoding (POMO-style): row ``i`` makes its first
+            move into set ``first_set[i]`` (its best-scored allowed node there); ``-1``, or
+            a set with no allowed node, leaves the first move free.
 
     Returns:
         A :class:`DecodeTrace`; the plan is [start, chosen nodes..., (end node when the
@@ -142,23 +155,40 @@ def decode(
     b, n = instance.set_id.shape
     k = instance.set_reward.shape[-1]
     steps = plan_length(k) - 1
+    uses_step = model.config.step_features
+    if cache is None or uses_step:
+        features = _features(instance, features)
     if cache is None:
-        cache = model.prepare(_features(instance, features), instance.start)
+        cache = model.prepare(features, instance.start)
     greedy = jnp.broadcast_to(jnp.asarray(greedy, bool), (b,))
     if key is None:
         key = jax.random.key(0)  # unused by greedy rows; keeps one code path
     keys = jax.random.split(key, steps)
+    if first_set is None:
+        first_only = jnp.ones((b, n + 1), bool)
+    else:  # the first move's extra mask: nodes of the row's set (END too, see below)
+        first_set = jnp.broadcast_to(jnp.asarray(first_set, jnp.int32), (b,))
+        in_set = (instance.set_id == first_set[:, None]) & (first_set[:, None] >= 0)
+        first_only = jnp.concatenate([in_set, jnp.zeros((b, 1), bool)], axis=-1)
 
-    def step(carry, step_key):
+    def step(carry, inputs):
+        step_key, index = inputs
         last, visited, done, travelled = carry
         allowed = next_mask(  # [B, 1, N+1]
             instance, visited[:, None], last[:, None], travelled[:, None], model.config.budget_mask
         )
+        if first_set is not None:  # restrict the first move where the set has a choice
+            forced = allowed[:, 0] & first_only
+            use = (index == 0) & jnp.any(forced, axis=-1, keepdims=True)
+            allowed = jnp.where(use, forced, allowed[:, 0])[:, None]
         budget_left = None
         if model.config.budget_aware:
             budget_left = normalised_budget(instance.budget - travelled, cache.cost_scale)
             budget_left = budget_left[:, None]
-        scores = model.decoder(cache, last[:, None], allowed, budget_left)[:, 0]
+        step_in = None
+        if uses_step:
+            step_in = step_features(instance, features, last[:, None], travelled[:, None])
+        scores = model.decoder(cache, last[:, None], allowed, budget_left, step_in)[:, 0]
         sampled = jax.random.categorical(step_key, scores / temperature, axis=-1)
         choice = jnp.where(greedy, jnp.argmax(scores, axis=-1), sampled)
         stop = done | (choice == n)
@@ -173,7 +203,7 @@ def decode(
         jnp.zeros((b,), bool),
         jnp.zeros((b,), jnp.float32),
     )
-    _, (chosen, probs, allowed) = jax.lax.scan(step, carry0, keys)
+    _, (chosen, probs, allowed) = jax.lax.scan(step, carry0, (keys, jnp.arange(steps)))
     nodes = jnp.concatenate([instance.start[:, None], chosen.T], axis=1).astype(jnp.int32)
     nodes = close_plan(instance, nodes)  # a closed tour or fixed goal ends at its end node
     reward, cost = plan_value(instance, nodes)

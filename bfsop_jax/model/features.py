@@ -11,7 +11,10 @@ works on ``.sop`` files and hand-made instances of any scale:
   ``c^ = c / max(max finite valid c, 1e-9)``; unreachable pairs (``inf``) get ``c^ = 1``,
   pairs with a padding node get ``c^ = 1`` too (they are masked in attention anyway);
 * remaining budget: divided by the same largest finite cost, clipped to
-  ``[0, BUDGET_CLIP]`` (an infinite budget stays finite).
+  ``[0, BUDGET_CLIP]`` (an infinite budget stays finite);
+* step features (:func:`step_features`, for a decoder with ``step_features``): what a
+  move from the current node to each candidate costs, against what it is worth and what
+  budget is left, in the same cost units.
 """
 
 from __future__ import annotations
@@ -29,9 +32,11 @@ __all__ = [
     "COST_EPS",
     "NUM_FEATURES",
     "NUM_SYMMETRIES",
+    "NUM_STEP_FEATURES",
     "NodeFeatures",
     "node_features",
     "normalised_budget",
+    "step_features",
     "symmetric_features",
 ]
 
@@ -39,6 +44,8 @@ COST_EPS = 1e-9  # eps of the geometric bias (paper value)
 BUDGET_CLIP = 10.0  # remaining budget, in units of the largest cost, is clipped to this
 NUM_FEATURES = 4  # [x~, y~, r~, is_start]
 NUM_SYMMETRIES = 8  # flips and quarter turns of the unit square
+NUM_STEP_FEATURES = 7  # see step_features
+FAR = 2.0  # normalised cost given to unreachable pairs in the step features (>= every real one)
 
 
 @struct.dataclass
@@ -94,6 +101,49 @@ def node_features(instance: SOPInstance) -> NodeFeatures:
 def normalised_budget(budget_left: jax.Array, cost_scale: jax.Array) -> jax.Array:
     """Remaining budget (metres) in units of the largest cost, clipped to [0, BUDGET_CLIP]."""
     return jnp.clip(budget_left / cost_scale, 0.0, BUDGET_CLIP)
+
+
+def step_features(
+    instance: SOPInstance, features: NodeFeatures, last: jax.Array, travelled: jax.Array
+) -> jax.Array:
+    """Per-candidate features of S decoding states per instance (batched, pure).
+
+    For the state (last node ``l``, cost so far ``t``) and each node ``j``, in units of
+    the instance's largest finite cost ``s`` (``features.cost_scale``):
+
+    0. ``d = c(l, j) / s``, the move's cost (unreachable: :data:`FAR`);
+    1. ``e = c(j, end) / s``, from ``j`` on to the end node (0 for an open path);
+    2. ``left = (budget - t) / s``, clipped to ``[0, BUDGET_CLIP]``;
+    3. ``slack = left - d - e``, clipped to ``[-1, BUDGET_CLIP]`` (>= 0: ``j`` still fits);
+    4. ``(d + e) / left``, the share of what is left that the move commits, clipped to
+       ``[0, 2]``;
+    5. ``r~_j``, the node's normalised set reward;
+    6. ``log(r~_j + 1e-3) - log(d + 1e-2)``, reward per distance on a log scale.
+
+    Args:
+        instance: batch of B instances (N nodes).
+        features: their :func:`node_features` (any coordinate symmetry: costs are the same).
+        last: [B, S] int32 last node of each state.
+        travelled: [B, S] float32 cost of each state's plan so far (cost units).
+
+    Returns:
+        [B, S, N, NUM_STEP_FEATURES] float32 (zeros for padding nodes).
+    """
+    scale = features.cost_scale[:, None, None]  # [B, 1, 1]
+    cost = jnp.take_along_axis(instance.cost, last[..., None], axis=1)  # [B, S, N]
+    d = jnp.where(jnp.isfinite(cost), jnp.minimum(cost / scale, FAR), FAR)
+    end = jnp.clip(instance.end, 0)
+    to_end = jax.vmap(lambda c, e: c[:, e])(instance.cost, end)  # [B, N]
+    to_end = jnp.where(jnp.isfinite(to_end), jnp.minimum(to_end / scale[:, 0], FAR), FAR)
+    e = jnp.broadcast_to(jnp.where(instance.end[:, None] >= 0, to_end, 0.0)[:, None], d.shape)
+    left = normalised_budget(instance.budget[:, None] - travelled, scale[..., 0])
+    left = jnp.broadcast_to(left[..., None], d.shape)
+    slack = jnp.clip(left - d - e, -1.0, BUDGET_CLIP)
+    share = jnp.clip((d + e) / jnp.maximum(left, 1e-3), 0.0, 2.0)
+    r = jnp.broadcast_to(features.nodes[:, None, :, 2], d.shape)
+    ratio = jnp.log(r + 1e-3) - jnp.log(d + 1e-2)
+    out = jnp.stack([d, e, left, slack, share, r, ratio], axis=-1)
+    return jnp.where(features.valid[:, None, :, None], out, 0.0).astype(jnp.float32)
 
 
 def _transform_xy(xy: jax.Array, index: int) -> jax.Array:

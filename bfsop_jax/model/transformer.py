@@ -15,8 +15,12 @@ embeddings (index ``N``), so END takes part in the glimpse and is scored like a 
 Keys are computed once per instance (:meth:`PointerDecoder.precompute`). At each step the
 query is ``W_g mean(h_valid) + W_s [h_last, h_start, (budget~)]``; a multi-head glimpse
 over the allowed nodes refines it, and the scores are ``clip * tanh(q . k_j / sqrt(d))``;
-entries not allowed get ``-inf``. *Which* nodes are allowed is decided by the caller
-(:mod:`bfsop_jax.model.decode`): the network only applies the mask it is given.
+entries not allowed get ``-inf``. With ``step_features`` a small MLP over the per-candidate
+step features (:func:`bfsop_jax.model.features.step_features`: the move's cost, what is
+left of the budget, reward per distance) adds a score to every node; its output layer
+starts at zero, so such a decoder starts as the plain pointer. *Which* nodes are allowed
+is decided by the caller (:mod:`bfsop_jax.model.decode`): the network only applies the
+mask it is given.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import jax
 import jax.numpy as jnp
 from flax import nnx, struct
 
-from bfsop_jax.model.features import NUM_FEATURES, NodeFeatures
+from bfsop_jax.model.features import NUM_FEATURES, NUM_STEP_FEATURES, NodeFeatures
 
 __all__ = [
     "DecoderCache",
@@ -56,9 +60,11 @@ class ModelConfig:
     budget_aware: bool = False  # feed the remaining budget to the decoder query
     budget_mask: bool = False  # mask nodes that no longer fit; END only when none does
     bias_scale_init: float = 1.0  # initial per-head scale of the geometric bias
+    step_features: bool = False  # score candidates by their step features too (an MLP)
+    step_hidden: int = 64  # hidden width of that MLP
 
     def __post_init__(self) -> None:
-        for name in ("d_model", "n_layers", "n_heads", "d_ff"):
+        for name in ("d_model", "n_layers", "n_heads", "d_ff", "step_hidden"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"ModelConfig.{name} must be a positive int, got {value!r}")
@@ -181,6 +187,12 @@ class PointerDecoder(nnx.Module):
         self.project_glimpse = nnx.Linear(
             d, d, use_bias=False, kernel_init=nnx.initializers.zeros_init(), rngs=rngs
         )
+        self.uses_step_features = config.step_features
+        if config.step_features:
+            self.step_in = nnx.Linear(NUM_STEP_FEATURES, config.step_hidden, rngs=rngs)
+            self.step_out = nnx.Linear(
+                config.step_hidden, 1, kernel_init=nnx.initializers.zeros_init(), rngs=rngs
+            )
 
     def precompute(
         self, nodes: jax.Array, features: NodeFeatures, start: jax.Array
@@ -210,6 +222,7 @@ class PointerDecoder(nnx.Module):
         last: jax.Array,
         allowed: jax.Array,
         budget_left: jax.Array | None = None,
+        step: jax.Array | None = None,
     ) -> jax.Array:
         """Scores of S decoding states per instance.
 
@@ -220,6 +233,8 @@ class PointerDecoder(nnx.Module):
             budget_left: [B, S] float32 remaining budget normalised by the largest cost
                 (:func:`~bfsop_jax.model.features.normalised_budget`); used only when the
                 model is budget-aware.
+            step: [B, S, N, NUM_STEP_FEATURES] float32 step features; used (and needed)
+                only when the model has ``step_features``.
 
         Returns:
             [B, S, N+1] float32 scores in ``[-clip, clip]``; ``-inf`` where not allowed.
@@ -243,6 +258,11 @@ class PointerDecoder(nnx.Module):
 
         scores = jnp.einsum("bsd,bnd->bsn", glimpse, cache.logit_key) / math.sqrt(d)
         scores = self.clip * jnp.tanh(scores)
+        if self.uses_step_features:
+            if step is None:
+                raise ValueError("a decoder with step_features needs the step features")
+            extra = self.step_out(jax.nn.relu(self.step_in(step)))[..., 0]  # [B, S, N]
+            scores = scores + jnp.pad(extra, ((0, 0), (0, 0), (0, 1)))  # END: no term
         return jnp.where(allowed, scores, -jnp.inf)
 
 

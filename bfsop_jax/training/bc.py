@@ -71,6 +71,7 @@ __all__ = [
     "train",
 ]
 
+
 # -- data ------------------------------------------------------------------------------------
 def _check_dataset(ds: Mapping[str, Any], name: str = "dataset") -> dict[str, np.ndarray]:
     """Typed copy of the arrays the trainer uses; ValueError naming the problem.
@@ -235,11 +236,14 @@ def init_states(
     lrs: Sequence[float] = (),
     *,
     replicas: Sequence[Replica] | None = None,
+    init_params: Any = None,
 ) -> tuple[nnx.GraphDef, TrainState]:
     """Graph definition and stacked initial states of the replicas.
 
     The replicas are ``replicas`` when given, otherwise ``zip(seeds, lrs)`` with the
-    recipe's other numbers.
+    recipe's other numbers. ``init_params`` (the ``nnx.Param`` state of a model of the
+    same config) starts every replica from those weights with a fresh optimiser
+    (fine-tuning, DAgger rounds) instead of a seeded initialisation.
     """
     if replicas is None:
         replicas = [Replica.of(train_config, s, lr) for s, lr in zip(seeds, lrs, strict=True)]
@@ -249,6 +253,14 @@ def init_states(
     for rep in replicas:
         model = StrategicTransformer(model_config, rngs=nnx.Rngs(params=_init_key(rep.seed)))
         graphdef, params = nnx.split(model, nnx.Param)
+        if init_params is not None:
+            try:
+                params = jax.tree_util.tree_map(
+                    lambda fresh, given: jnp.asarray(given, fresh.dtype).reshape(fresh.shape),
+                    params, init_params,
+                )  # fmt: skip
+            except (ValueError, TypeError) as err:
+                raise ValueError(f"init_params do not match the model config: {err}") from None
         states.append(
             TrainState(
                 params=params,
@@ -518,6 +530,7 @@ def train(
     replicas: Sequence[Replica] | None = None,
     replica_dirs: Sequence[str | os.PathLike] | None = None,
     mesh: Mesh | None = None,
+    init_params: Any = None,
 ) -> TrainResult:
     """Train every replica as one vmapped program; checkpoint after every epoch.
 
@@ -541,6 +554,8 @@ def train(
         mesh: a one-axis (``"data"``) device mesh to spread the program over: the
             replicas when their count divides by the mesh size, otherwise every
             minibatch (the batch size must then divide by it). None: the default device.
+        init_params: start every replica from these model parameters (``nnx.Param``
+            state of the same model config), e.g. the previous DAgger round's model.
 
     Returns:
         A :class:`TrainResult`. On KeyboardInterrupt or SIGTERM the last completed epoch is
@@ -585,7 +600,7 @@ def train(
     _prepare_run_dir(run_dir, run_config, resume)
     barrier("train:prepared")
 
-    graphdef, states = init_states(config.model, tcfg, replicas=members)
+    graphdef, states = init_states(config.model, tcfg, replicas=members, init_params=init_params)
     lead = shard == "replicas"
     states = place(to_host(states), mesh, leading=lead)
     train_data = place(_check_dataset(train_ds), mesh, leading=False)

@@ -66,6 +66,7 @@ GROUP_KEYS: dict[str, tuple[type, str, str]] = {
     "geometric_bias": (bool, "model", "geometric_bias"),
     "budget_aware": (bool, "model", "budget_aware"),
     "budget_mask": (bool, "model", "budget_mask"),
+    "step_features": (bool, "model", "step_features"),
     "batch_size": (int, "train", "batch_size"),
     "epochs": (int, "train", "epochs"),
 }

@@ -3,7 +3,7 @@
 * :mod:`~bfsop_jax.viz.world`: a house, a belief map;
 * :mod:`~bfsop_jax.viz.trajectories`: executed trajectories, alone or side by side;
 * :mod:`~bfsop_jax.viz.tours`: SOP tours of several planners, the decoder's distance mass;
-* :mod:`~bfsop_jax.viz.training`: the training curve;
+* :mod:`~bfsop_jax.viz.training`: the training curve, DAgger rounds;
 * :mod:`~bfsop_jax.viz.evaluation`: PPL per method and per category, the sweep chart.
 
 Each ``plot_*`` function draws one picture of one thing and saves it as a PNG when given a
@@ -13,13 +13,14 @@ import it), and draws with the Agg backend, so it works without a display.
 
 from bfsop_jax.viz.evaluation import plot_category_ppl, plot_ppl, plot_sweep
 from bfsop_jax.viz.tours import plot_distance_mass, plot_tour_comparison
-from bfsop_jax.viz.training import plot_training_curve
+from bfsop_jax.viz.training import plot_dagger, plot_training_curve
 from bfsop_jax.viz.trajectories import plot_trajectories_side_by_side, plot_trajectory
 from bfsop_jax.viz.world import plot_belief, plot_house
 
 __all__ = [
     "plot_belief",
     "plot_category_ppl",
+    "plot_dagger",
     "plot_distance_mass",
     "plot_house",
     "plot_ppl",

@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt
 
 from bfsop_jax.viz.style import finish, style_axes
 
-__all__ = ["plot_training_curve"]
+__all__ = ["plot_dagger", "plot_training_curve"]
 
 
 def plot_training_curve(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> None:
@@ -44,4 +44,35 @@ def plot_training_curve(rows: Sequence[Mapping[str, Any]], path: str | os.PathLi
     style_axes(ax_acc, xlabel="epoch", ylabel="next-node accuracy", title="teacher agreement")
     for ax in (ax_loss, ax_acc):
         style_axes(ax, grid="both", legend={"fontsize": 7})
+    finish(fig, path, tight_bbox=False, close=True)
+
+
+def plot_dagger(history: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> None:
+    """DAgger rounds: reward ratio to the VNS per planner (left) and PPL (right, with its
+    95 % interval) against the round (0 = the behaviour-cloning model).
+
+    Args: history: one row per round (``round``, ``reward_ratio[<planner>]`` entries and
+    optional ``ppl``, ``ppl_ci95``), as :func:`bfsop_jax.training.dagger.run_dagger`
+    returns them.
+    """
+    if not history:
+        return
+    rounds = [r["round"] for r in history]
+    has_ppl = all("ppl" in r for r in history)
+    fig, axes = plt.subplots(1, 2 if has_ppl else 1, figsize=(10 if has_ppl else 5.5, 4), dpi=100)
+    ax_r = axes[0] if has_ppl else axes
+    for key in [k for k in history[0] if k.startswith("reward_ratio[")]:
+        ax_r.plot(rounds, [r[key] for r in history], "o-", label=key[13:-1])
+    style_axes(ax_r, xlabel="DAgger round", ylabel="reward / VNS", title="held-out instances",
+               grid="both", legend={"fontsize": 7})  # fmt: skip
+    ax_r.set_xticks(rounds)
+    if has_ppl:
+        ax_p = axes[1]
+        ppl = [r["ppl"] for r in history]
+        lo = [r["ppl"] - r["ppl_ci95"][0] for r in history]
+        hi = [r["ppl_ci95"][1] - r["ppl"] for r in history]
+        ax_p.errorbar(rounds, ppl, yerr=[lo, hi], fmt="o-", capsize=4)
+        style_axes(ax_p, xlabel="DAgger round", ylabel="PPL", grid="both",
+                   title="BF-SOP (Transformer), held-out episodes")  # fmt: skip
+        ax_p.set_xticks(rounds)
     finish(fig, path, tight_bbox=False, close=True)
