@@ -42,10 +42,18 @@ from bfsop_jax.sop.two_opt import budget_gate, insertion_fill
 from bfsop_jax.sop.two_opt import two_opt as sop_two_opt
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length, validate
 
-__all__ = ["DEMO_POLICY_DIR", "MULTI_START_REFINE", "TWO_OPT_ITERS", "StrategicPolicy"]
+__all__ = [
+    "DEMO_POLICY_DIR",
+    "MULTI_START_REFINE",
+    "SHIPPED_POLICIES",
+    "TWO_OPT_ITERS",
+    "StrategicPolicy",
+]
 
-# The pretrained demo model shipped with the package (config.json + model/).
-DEMO_POLICY_DIR = Path(__file__).resolve().parent / "assets" / "policy_demo"
+# The pretrained models shipped with the package (config.json + model/), by preset name.
+ASSETS_DIR = Path(__file__).resolve().parent / "assets"
+DEMO_POLICY_DIR = ASSETS_DIR / "policy_demo"
+SHIPPED_POLICIES = ("demo", "paper")
 TWO_OPT_ITERS = 100  # bounded 2-opt (docs/design.md §7.5)
 MULTI_START_REFINE = 4  # multi-start: plans per instance refined (greedy + 3 best others)
 
@@ -72,7 +80,9 @@ class StrategicPolicy:
 
         Args:
             run_dir: a training run directory (``config.json`` plus ``model/`` and/or
-                ``checkpoints/``); None loads :data:`DEMO_POLICY_DIR`.
+                ``checkpoints/``), or the name of a shipped model (``"demo"``,
+                ``"paper"``: ``bfsop_jax/assets/policy_<name>``, used when no directory of
+                that name exists); None loads :data:`DEMO_POLICY_DIR`.
             checkpoint: ``"model"`` (the replica chosen at the end of training),
                 ``"latest"`` (the last epoch checkpoint, its best replica so far) or
                 ``"auto"`` (``model`` if present, else ``latest``).
@@ -81,13 +91,17 @@ class StrategicPolicy:
             ValueError: missing directory, config or checkpoint, or unreadable files.
         """
         if run_dir is None:
-            if not (DEMO_POLICY_DIR / ckpt.CONFIG_FILE).is_file():
+            run_dir = "demo"
+        if isinstance(run_dir, str) and run_dir in SHIPPED_POLICIES and not Path(run_dir).is_dir():
+            name = run_dir
+            run_dir = ASSETS_DIR / f"policy_{name}"
+            if not (run_dir / ckpt.CONFIG_FILE).is_file():
                 raise ValueError(
-                    "the pretrained demo policy is not installed (bfsop_jax/assets/"
-                    "policy_demo has no config.json); train one with "
-                    "`python -m experiments.distill` and pass its run directory"
+                    f"the pretrained {name} policy is not installed (bfsop_jax/assets/"
+                    f"policy_{name} has no config.json); train one with "
+                    f"`python -m experiments.distill --preset {name}` and pass its run "
+                    "directory"
                 )
-            run_dir = DEMO_POLICY_DIR
         run_dir = Path(run_dir)
         if checkpoint not in ("auto", "model", "latest"):
             raise ValueError(f"checkpoint must be 'auto', 'model' or 'latest', got {checkpoint!r}")

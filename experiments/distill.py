@@ -63,9 +63,10 @@ class DistillPreset:
     eval_tasks: int = 24  # tasks posed per held-out house
     epochs: int | None = None  # None: the recipe's value
     seeds: tuple[int, ...] = (0,)
-    # decoder masks nodes that no longer fit the budget (END only when none does); the
-    # network itself stays budget-independent as in the paper
-    model_options: tuple[tuple[str, Any], ...] = (("budget_mask", True),)
+    # decoder masks nodes that no longer fit the budget (END only when none does), and
+    # scores each candidate by its step features too (move cost, budget left, reward per
+    # distance: docs/model.md)
+    model_options: tuple[tuple[str, Any], ...] = (("budget_mask", True), ("step_features", True))
     augment: bool = True  # train on random coordinate symmetries of each instance
     # navigation evaluation at the end (a reduced Table I protocol: these many held-out
     # houses x these categories, 0 houses = skip); the full one is experiments.evaluate
@@ -123,6 +124,7 @@ PRESETS: dict[str, DistillPreset] = {
 }
 
 ABLATIONS = {
+    "no_step_features": {"step_features": False},  # the pointer alone
     "no_geometric_bias": {"geometric_bias": False},
     "budget_aware": {"budget_aware": True},
     "no_budget_mask": {"budget_mask": False},  # the paper's decoder masks

@@ -12,7 +12,7 @@ held-out houses, planned by the VNS teacher once): reward / VNS of greedy decodi
 Combinations that differ only in replica keys (seed, lr, grad_clip, lr_decay,
 decay_every, warmup, label_smoothing, augment) train as replicas of one vmapped, jitted
 program; each set of values of the shape-changing keys (layers, width, heads, ff,
-geometric_bias, budget_aware, budget_mask, batch_size, epochs) is a group, compiled
+geometric_bias, budget_aware, budget_mask, step_features, batch_size, epochs) is a group, compiled
 once. With several devices the replicas (or the minibatches) are spread over all of them.
 
 Outputs in ``--out``: ``runs/<combination>/`` (``config.json`` + ``model/``, loadable by

@@ -78,9 +78,11 @@ def test_load_errors(tmp_path, run_dir, monkeypatch):
     (tmp_path / "config.json").write_text("{not json")
     with pytest.raises(ValueError, match="corrupt"):
         StrategicPolicy.load(tmp_path)
-    monkeypatch.setattr(policy_module, "DEMO_POLICY_DIR", tmp_path / "not_shipped")
+    monkeypatch.setattr(policy_module, "ASSETS_DIR", tmp_path / "not_shipped")
     with pytest.raises(ValueError, match="pretrained demo policy"):
         StrategicPolicy.load()
+    with pytest.raises(ValueError, match="pretrained paper policy"):
+        StrategicPolicy.load("paper")
     other = tmp_path / "other"
     other.mkdir()
     # a model saved for another architecture does not fit the config
@@ -257,6 +259,7 @@ def test_shipped_demo_policy_plans_map_instances():
     plans navigation-sized instances (N = 76, K = 16) feasibly and beats an empty plan."""
     shipped = StrategicPolicy.load()
     assert (shipped.num_nodes, shipped.num_sets) == (76, 16)
+    assert StrategicPolicy.load("demo").config == shipped.config  # the same model by name
     insts = [random_instance(s, num_sets=15, viewpoints=5, masked_sets=s % 3) for s in range(4)]
     sol = shipped.plan(stack(insts))
     for i, inst in enumerate(insts):
