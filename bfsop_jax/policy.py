@@ -129,6 +129,11 @@ class StrategicPolicy:
         return cls(nnx.merge(graphdef, params), num_nodes, num_sets)
 
     @property
+    def params(self) -> Any:
+        """The model's ``nnx.Param`` state (e.g. ``train(..., init_params=)`` to fine-tune)."""
+        return self._params
+
+    @property
     def model(self) -> StrategicTransformer:
         """The wrapped model (a fresh module sharing this policy's parameters)."""
         return nnx.merge(self._graphdef, self._params)

@@ -164,6 +164,10 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         "--dagger-epochs", type=int, default=10, help="dagger: training epochs per round"
     )
     ap.add_argument(
+        "--dagger-houses", type=int, default=20,
+        help="dagger: training houses the student drives in per round",
+    )  # fmt: skip
+    ap.add_argument(
         "--dagger-categories", type=int, default=3,
         help="dagger: episodes (target categories) per training house and round",
     )  # fmt: skip
@@ -400,8 +404,9 @@ def stage_dagger(args, preset: DistillPreset, store, cfg: DataConfig, out: Path)
     if not (base / "model").is_dir():
         raise ValueError(f"--stage dagger needs a trained run in {base} (train it first)")
     dagger = DaggerConfig(
-        rounds=args.rounds, epochs=args.dagger_epochs, categories_per_house=args.dagger_categories
-    )
+        rounds=args.rounds, epochs=args.dagger_epochs, houses_per_round=args.dagger_houses,
+        categories_per_house=args.dagger_categories,
+    )  # fmt: skip
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
     n_val = max(1, -(-preset.val_houses // cfg.houses_per_shard)) if cfg.n_shards > 1 else 0
     train_houses = min(cfg.houses, (cfg.n_shards - n_val) * cfg.houses_per_shard)

@@ -49,12 +49,13 @@ class DaggerConfig:
     """How many DAgger rounds, and how much the student drives in each."""
 
     rounds: int = 3
+    houses_per_round: int = 20  # training houses driven in per round (a rotating window)
     categories_per_house: int = 3  # episodes per training house and round
     epochs: int = 10  # training epochs per round, from the previous round's weights
-    lr: float | None = None  # learning rate of the rounds (None: the base run's)
+    lr: float | None = None  # learning rate of the rounds (None: the base run's last one)
 
     def __post_init__(self) -> None:
-        for name in ("rounds", "categories_per_house", "epochs"):
+        for name in ("rounds", "houses_per_round", "categories_per_house", "epochs"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"DaggerConfig.{name} must be a positive int, got {value!r}")
@@ -65,6 +66,18 @@ class DaggerConfig:
 def _concat(parts: list[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
     keys = parts[0].keys()
     return {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in keys}
+
+
+def _last_lr(run_dir: Path, config: dict[str, Any]) -> float:
+    """The learning rate the run ended with (its last metrics row), else its base rate."""
+    best = config.get("result", {}).get("best_replica", 0)
+    path = run_dir / "metrics.jsonl"
+    if path.is_file():
+        rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+        rows = [r for r in rows if r.get("replica", 0) == best and "lr" in r]
+        if rows:
+            return float(rows[-1]["lr"])
+    return float(config.get("result", {}).get("lr", config["replicas"][0]["lr"]))
 
 
 def run_dagger(
@@ -84,8 +97,9 @@ def run_dagger(
         base_run: the behaviour-cloning run directory (round 0's student).
         train_ds, val_ds: its training and validation records; the DAgger rows are added
             to the training side only (validation stays the teacher's distribution).
-        house_seeds: [H] training house seeds the student drives in (never evaluation
-            houses; the validation houses are best left out too).
+        house_seeds: [H] training house seeds the student may drive in (never evaluation
+            houses; the validation houses are best left out too). Round r takes the next
+            ``dagger.houses_per_round`` of them (wrapping around), so rounds see new houses.
         data_config: labels the rows (``vns_config``) and names the preset.
         out_dir: where rounds and ``dagger.json`` go.
         dagger: rounds, episodes and epochs.
@@ -111,8 +125,7 @@ def run_dagger(
     prior = jnp.asarray(default_prior())
     base_config = ckpt.read_config(Path(base_run))
     run_config = RunConfig.from_dict(base_config["run"])
-    base_lr = float(base_config.get("result", {}).get("lr", base_config["replicas"][0]["lr"]))
-    lr = dagger.lr if dagger.lr is not None else base_lr
+    lr = dagger.lr if dagger.lr is not None else _last_lr(Path(base_run), base_config)
     run_config = dataclasses.replace(
         run_config, train=dataclasses.replace(run_config.train, epochs=dagger.epochs)
     )
@@ -132,9 +145,11 @@ def run_dagger(
     for r in range(1, dagger.rounds + 1):
         round_dir = out / f"round-{r:02d}"
         row: dict[str, Any] = {"round": r}
+        h = min(dagger.houses_per_round, seeds.size)
+        mine = seeds[(np.arange(h) + (r - 1) * h) % seeds.size]
         store = ShardStore(
             round_dir / "data",
-            {"dagger_round": r, "student": str(previous), "house_seeds": seeds.tolist(),
+            {"dagger_round": r, "student": str(previous), "house_seeds": mine.tolist(),
              "categories_per_house": dagger.categories_per_house,
              "data_config": dataclasses.asdict(data_config)},
         )  # fmt: skip
@@ -142,10 +157,10 @@ def run_dagger(
         if not store.is_complete(0):
             planner = TransformerPlanner(policy)
             records = student_records(
-                seeds, planner, preset, data_config, prior, episode_salt=r,
+                mine, planner, preset, data_config, prior, episode_salt=r,
                 categories_per_house=dagger.categories_per_house, timings=timings,
             )  # fmt: skip
-            store.write(0, records, {"house_seeds": [int(seeds[0]), int(seeds[-1])]})
+            store.write(0, records, {"house_seeds": mine.tolist()})
         rows = store.load()
         parts.append(rows)
         aggregate = _concat(parts)
@@ -156,7 +171,7 @@ def run_dagger(
             resume = (run_dir / "checkpoints").exists()
             train(
                 run_config, aggregate, val_ds, run_dir, seeds=(0,), lrs=(lr,), resume=resume,
-                progress=progress, init_params=policy._params,
+                progress=progress, init_params=policy.params,
                 dataset_meta={"dagger_round": r, "warm_start": str(previous)},
             )  # fmt: skip
         timings["training"] = time.perf_counter() - t0
