@@ -69,6 +69,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--epochs", type=int, default=None, help="epochs of every combination")
     ap.add_argument("--out", default=None, help="sweep directory (default runs/sweep-<preset>)")
     ap.add_argument("--data-dir", default=None, help="dataset cache (default: distill's)")
+    ap.add_argument("--houses", type=int, default=None, help="override: training houses")
+    ap.add_argument("--tasks", type=int, default=None, help="override: virtual tasks per house")
     ap.add_argument("--eval-seeds", default=None, help="held-out house seeds START:END")
     ap.add_argument("--eval-tasks", type=int, default=None, help="tasks per held-out house")
     ap.add_argument("--devices", type=int, default=None, help="first N devices (default all)")
@@ -305,7 +307,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     _atomic_json(plan, plan_path)
 
     t0 = time.perf_counter()
-    data_args = argparse.Namespace(houses=None, tasks=None, no_progress=args.no_progress)
+    data_args = argparse.Namespace(houses=args.houses, tasks=args.tasks,
+                                   no_progress=args.no_progress)  # fmt: skip
     if is_primary():
         store, cfg = distill.stage_data(data_args, preset, data_dir)
     barrier("sweep:data")

@@ -131,3 +131,14 @@ def test_sweep_end_to_end_compiles_once_per_group_and_resumes(tmp_path, smoke_da
     np.testing.assert_allclose(
         again["results"][0]["reward_ratio"], results[0]["reward_ratio"], rtol=1e-6
     )
+
+
+def test_sweep_data_overrides_reach_the_dataset(tmp_path, smoke_data_dir):
+    """``--houses`` / ``--tasks`` select the dataset as in ``experiments.distill``: the
+    smoke cache (2 houses) is refused for a 3-house configuration, before any training."""
+    from experiments import sweep
+
+    argv = ["--preset", "smoke", "--grid", "lr=1e-3", "--out", str(tmp_path / "s"),
+            "--data-dir", str(smoke_data_dir), "--houses", "3", "--no-progress"]  # fmt: skip
+    with pytest.raises(ValueError, match="another configuration"):
+        sweep.main(argv)
