@@ -307,7 +307,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     _atomic_json(plan, plan_path)
 
     t0 = time.perf_counter()
-    data_args = argparse.Namespace(houses=args.houses, tasks=args.tasks,
+    data_args = argparse.Namespace(houses=args.houses, tasks=args.tasks, stage="train",
                                    no_progress=args.no_progress)  # fmt: skip
     if is_primary():
         store, cfg = distill.stage_data(data_args, preset, data_dir)
