@@ -196,13 +196,25 @@ def on_trajectory_decisions(
 _generate_houses = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)
 
 
+def _present_categories(houses, j: int) -> np.ndarray:
+    """The target categories present in house ``j`` of a batch (host-side, sorted)."""
+    cats = np.asarray(houses.object_category[j])
+    return np.unique(cats[(cats >= 0) & (cats < N_TARGETS)])
+
+
 def _present_category(houses, j: int, key: jax.Array) -> int:
     """A random target category present in house ``j`` of a batch (host-side)."""
-    cats = np.asarray(houses.object_category[j])
-    present = np.unique(cats[(cats >= 0) & (cats < N_TARGETS)])
+    present = _present_categories(houses, j)
     if len(present) == 0:
         return 0
     return int(present[int(jax.random.randint(key, (), 0, len(present)))])
+
+
+def _selected_steps(tree, sel: np.ndarray):
+    """Leaves [E, S, ...] -> [E * S, ...] as NumPy, keeping the rows where ``sel`` [E * S]."""
+    return jax.tree_util.tree_map(
+        lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[sel], tree
+    )
 
 
 def _records(instances, categories, labels, house_seeds, source) -> dict[str, np.ndarray]:
@@ -394,9 +406,7 @@ def shard_records(
         )
         sel = np.asarray(switched).reshape(-1)  # [H * steps]: the exploitation decisions
         steps = np.shape(switched)[1]
-        inst, plans = jax.tree_util.tree_map(
-            lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[sel], (inst, plans)
-        )
+        inst, plans = _selected_steps((inst, plans), sel)
         parts.append(
             _records(inst, np.repeat(cat, steps)[sel], plans, np.repeat(seeds, steps)[sel],
                      SOURCE_ON_TRAJECTORY)
@@ -450,8 +460,7 @@ def student_records(
     houses = _generate_houses(keys, preset)
     pairs = []
     for j, seed in enumerate(seeds):
-        cats = np.asarray(houses.object_category[j])
-        present = np.unique(cats[(cats >= 0) & (cats < N_TARGETS)])
+        present = _present_categories(houses, j)
         rng = np.random.default_rng([int(seed), int(episode_salt)])
         for cat in rng.permutation(present)[:categories_per_house]:
             pairs.append((j, int(cat)))
@@ -470,9 +479,7 @@ def student_records(
         timings["student_episodes"] = timings.get("student_episodes", 0.0) + now - clock
     sel = np.asarray(planned).reshape(-1)
     steps = np.shape(planned)[1]
-    inst = jax.tree_util.tree_map(
-        lambda a: np.asarray(a).reshape((-1,) + np.shape(a)[2:])[sel], inst
-    )
+    inst = _selected_steps(inst, sel)
     vns_seeds = np.flatnonzero(sel).astype(np.int64) + 7919 * int(episode_salt)
     labels = solve_vns_batch(inst, vns_seeds, config=config.vns_config)
     if timings is not None:
