@@ -136,8 +136,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--preset", default="demo", choices=sorted(PRESETS))
     ap.add_argument("--out", default=None, help="run directory (default runs/distill-<preset>)")
     ap.add_argument(
-        "--stage", default=None, choices=["all", "data", "train", "eval", "dagger"],
-        help="default: all (data with --merge-data); dagger: DAgger rounds from --checkpoint",
+        "--stage", default=None, choices=["all", "data", "train", "eval", "dagger", "rl"],
+        help="default: all (data with --merge-data); dagger: DAgger rounds from --checkpoint; "
+        "rl: reward fine-tuning of --checkpoint into <out>/rl",
     )  # fmt: skip
     ap.add_argument(
         "--data-dir", default=None, help="dataset cache (default data/distill-<preset>)"
@@ -170,6 +171,13 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument(
         "--dagger-categories", type=int, default=3,
         help="dagger: episodes (target categories) per training house and round",
+    )  # fmt: skip
+    ap.add_argument("--rl-epochs", type=int, default=4, help="rl: fine-tuning epochs")
+    ap.add_argument("--rl-lr", type=float, default=1e-4, help="rl: Adam learning rate")
+    ap.add_argument("--rl-samples", type=int, default=8, help="rl: sampled plans per instance")
+    ap.add_argument(
+        "--rl-bc-weight", type=float, default=0.5,
+        help="rl: weight of the teacher's cross-entropy next to the reward term",
     )  # fmt: skip
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
@@ -454,6 +462,39 @@ def stage_dagger(args, preset: DistillPreset, store, cfg: DataConfig, out: Path)
     return history
 
 
+def stage_rl(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> list[dict]:
+    """Reward fine-tuning of the trained run ``--checkpoint`` (default ``--out``) on the
+    training records, into ``<out>/rl``; the validation houses' greedy reward picks the
+    epoch (``rl.md``, ``rl.png``). Evaluate it with ``--stage eval --checkpoint <out>/rl``."""
+    from bfsop_jax.files import write_text
+    from bfsop_jax.training.rl import RLConfig, finetune_rl
+    from bfsop_jax.viz import plot_rl
+
+    base = Path(args.checkpoint) if args.checkpoint else out
+    if not (base / "model").is_dir():
+        raise ValueError(f"--stage rl needs a trained run in {base} (train it first)")
+    rl = RLConfig(epochs=args.rl_epochs, lr=args.rl_lr, samples=args.rl_samples,
+                  bc_weight=args.rl_bc_weight)  # fmt: skip
+    train_ds, val_ds = _split(store, cfg, preset.val_houses)
+    if val_ds is None:
+        raise ValueError("--stage rl needs validation houses (a dataset of several shards)")
+    rl_dir = out / "rl"
+    print(f"reward fine-tuning {base} ({rl.epochs} epochs) -> {rl_dir}")
+    rows = finetune_rl(base, train_ds, val_ds, rl_dir, rl, progress=not args.no_progress)
+    head = ("| epoch | validation greedy / teacher | training sampled / teacher | "
+            "teacher cross-entropy | seconds | selected |")
+    lines = [head, "|---|---|---|---|---|---|"]
+    for r in rows:
+        sample = f"{r['train_sample_ratio']:.3f}" if "train_sample_ratio" in r else "-"
+        loss = f"{r['train_bc_loss']:.3f}" if "train_bc_loss" in r else "-"
+        lines.append(f"| {r['epoch']} | {r['val_greedy_ratio']:.3f} | {sample} | {loss} | "
+                     f"{r.get('seconds', '-')} | {'yes' if r['selected'] else ''} |")  # fmt: skip
+    write_text(rl_dir / "rl.md", "\n".join(lines) + "\n")
+    plot_rl(rows, rl_dir / "rl.png")
+    print("\n".join(lines))
+    return rows
+
+
 def _dagger_report(history: list[dict[str, Any]], out: Path) -> None:
     """``dagger.md`` (one row per round) and ``dagger.png`` (reward ratio and PPL)."""
     from bfsop_jax.files import write_text
@@ -516,6 +557,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.stage == "dagger":
         store, cfg = stage_data(args, preset, data_dir)
         summary["dagger"] = stage_dagger(args, preset, store, cfg, out)
+    if args.stage == "rl":
+        store, cfg = stage_data(args, preset, data_dir)
+        summary["rl"] = stage_rl(args, preset, store, cfg, out)
     if args.stage == "eval" and args.ablations:
         ablations = _trained_ablations(out if args.checkpoint is None else Path(args.checkpoint))
     if args.stage in ("all", "eval"):

@@ -147,6 +147,15 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     assert again[1]["rows"] == history[1]["rows"]
     assert max(f.stat().st_mtime_ns for f in model_dir.rglob("*") if f.is_file()) == stamp
 
+    # reward fine-tuning of the trained run into run/rl, selected on the validation houses
+    rows = distill.main(["--preset", "smoke", "--stage", "rl", "--out", str(run), "--data-dir",
+                         str(data), "--rl-epochs", "1", "--rl-samples", "2",
+                         "--no-progress"])["rl"]  # fmt: skip
+    assert [r["epoch"] for r in rows] == [0, 1] and sum(r["selected"] for r in rows) == 1
+    for name in ("rl.md", "rl.png", "rl_metrics.jsonl", "config.json"):
+        assert (run / "rl" / name).is_file(), name
+    assert StrategicPolicy.load(run / "rl").num_sets == StrategicPolicy.load(run).num_sets
+
 
 def test_distill_rejects_bad_arguments(tmp_path, capsys):
     from experiments import distill

@@ -13,7 +13,7 @@ import it), and draws with the Agg backend, so it works without a display.
 
 from bfsop_jax.viz.evaluation import plot_category_ppl, plot_ppl, plot_sweep
 from bfsop_jax.viz.tours import plot_distance_mass, plot_tour_comparison
-from bfsop_jax.viz.training import plot_dagger, plot_training_curve
+from bfsop_jax.viz.training import plot_dagger, plot_rl, plot_training_curve
 from bfsop_jax.viz.trajectories import plot_trajectories_side_by_side, plot_trajectory
 from bfsop_jax.viz.world import plot_belief, plot_house
 
@@ -21,6 +21,7 @@ __all__ = [
     "plot_belief",
     "plot_category_ppl",
     "plot_dagger",
+    "plot_rl",
     "plot_distance_mass",
     "plot_house",
     "plot_ppl",

@@ -76,3 +76,31 @@ def plot_dagger(history: Sequence[Mapping[str, Any]], path: str | os.PathLike) -
                    title="BF-SOP (Transformer), held-out episodes")  # fmt: skip
         ax_p.set_xticks(rounds)
     finish(fig, path, tight_bbox=False, close=True)
+
+
+def plot_rl(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike) -> None:
+    """Reward fine-tuning: the validation greedy reward ratio and the training sampled one
+    (reward / teacher reward) against the epoch (0 = the behaviour-cloned model); the
+    selected epoch is circled.
+
+    Args: rows: one row per epoch as :func:`bfsop_jax.training.rl.finetune_rl` returns them.
+    """
+    if not rows:
+        return
+    fig, ax = plt.subplots(figsize=(5.5, 4), dpi=100)
+    epochs = [r["epoch"] for r in rows]
+    ax.plot(epochs, [r["val_greedy_ratio"] for r in rows], "o-", label="validation, greedy")
+    tuned = [r for r in rows if "train_sample_ratio" in r]
+    if tuned:
+        ax.plot([r["epoch"] for r in tuned], [r["train_sample_ratio"] for r in tuned], "s--",
+                label="training, sampled")  # fmt: skip
+    chosen = [r for r in rows if r.get("selected")]
+    if chosen:
+        ax.plot([chosen[0]["epoch"]], [chosen[0]["val_greedy_ratio"]], "o", ms=14, mfc="none",
+                mec="k", label="selected")  # fmt: skip
+    style_axes(
+        ax, xlabel="fine-tuning epoch", ylabel="reward / teacher reward",
+        title="reward fine-tuning (no 2-opt)", grid="both", legend={"fontsize": 8},
+    )  # fmt: skip
+    ax.set_xticks(epochs)
+    finish(fig, path, tight_bbox=False, close=True)

@@ -1,0 +1,129 @@
+"""Reward fine-tuning: the likelihood it trains is the sampler's, it raises the greedy reward,
+it selects on validation, resumes, and refuses a changed recipe."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from bfsop_jax.model import ModelConfig
+from bfsop_jax.model.decode import decode, teacher_forced_logits
+from bfsop_jax.policy import StrategicPolicy
+from bfsop_jax.sop import solve_vns
+from bfsop_jax.sop.io import random_instance
+from bfsop_jax.training import RunConfig, TrainConfig, dataset_from_instances, train
+from bfsop_jax.training.bc import instances_from_dataset
+from bfsop_jax.training.rl import RLConfig, _plan_log_prob, finetune_rl, greedy_reward_ratio
+
+TINY = ModelConfig(d_model=32, n_layers=2, n_heads=2, d_ff=64, budget_mask=True, step_features=True)
+SETS, VIEWPOINTS = 6, 3  # N = 19 nodes, K = 7 sets
+
+
+def labelled(seeds: range) -> dict[str, np.ndarray]:
+    insts = [
+        random_instance(s, num_sets=SETS, viewpoints=VIEWPOINTS, masked_sets=s % 3) for s in seeds
+    ]
+    sols = [solve_vns(i, seed=0, max_iters=200, max_no_improve=100) for i in insts]
+    return dataset_from_instances(insts, sols)
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    """A briefly behaviour-cloned tiny model (room left to improve) and its data."""
+    train_ds, val_ds = labelled(range(64)), labelled(range(1000, 1016))
+    run = tmp_path_factory.mktemp("rl") / "base"
+    config = RunConfig(model=TINY, train=TrainConfig(epochs=2, batch_size=16), preset="smoke")
+    train(config, train_ds, val_ds, run, lrs=(3e-3,), progress=False)
+    return run, train_ds, val_ds
+
+
+def test_config_errors():
+    with pytest.raises(ValueError, match="samples must be >= 2"):
+        RLConfig(samples=1)
+    with pytest.raises(ValueError, match="lr must be positive"):
+        RLConfig(lr=0.0)
+    with pytest.raises(ValueError, match="bc_weight"):
+        RLConfig(bc_weight=-1.0)
+
+
+def test_trained_likelihood_is_the_samplers(base):
+    """The teacher-forced log-probability of a sampled plan is the sum of the log
+    probabilities the sampler drew its entries with (same masks, same step features)."""
+    run, train_ds, _ = base
+    policy = StrategicPolicy.load(run)
+    inst = jax.tree_util.tree_map(jnp.asarray, instances_from_dataset(train_ds))
+    trace = decode(policy.model, inst, jax.random.key(3), greedy=False)
+    nodes = trace.solution.nodes
+    n = inst.set_id.shape[1]
+    nxt = nodes[:, 1:]
+    target = jnp.where(nxt >= 0, nxt, n)
+    chosen = jnp.take_along_axis(trace.probs, target[..., None], axis=-1)[..., 0]
+    steps = jnp.concatenate([jnp.ones_like(nxt[:, :1], bool), nxt[:, :-1] >= 0], axis=1)
+    expected = jnp.sum(jnp.where(steps, jnp.log(chosen), 0.0), axis=-1)
+    got = _plan_log_prob(teacher_forced_logits(policy.model, inst, nodes))
+    np.testing.assert_allclose(np.asarray(got), np.asarray(expected), rtol=1e-4, atol=1e-4)
+    assert float(jnp.min(got)) < -1.0  # the sampler had choices to make
+
+
+def test_finetuning_raises_the_greedy_reward_and_resumes(base, tmp_path):
+    run, train_ds, val_ds = base
+    rl = RLConfig(epochs=3, batch_size=16, samples=8, lr=3e-3, bc_weight=0.1)
+    # validate on the training instances: the test asks whether the reward on the
+    # instances it trains on rises (selection then must pick a fine-tuned epoch)
+    rows = finetune_rl(run, train_ds, train_ds, tmp_path / "rl", rl, seed=0, progress=False)
+    assert [r["epoch"] for r in rows] == [0, 1, 2, 3]
+    assert max(r["val_greedy_ratio"] for r in rows[1:]) > rows[0]["val_greedy_ratio"] + 0.02
+    selected = [r for r in rows if r["selected"]]
+    assert len(selected) == 1 and selected[0]["epoch"] > 0
+    assert selected[0]["val_greedy_ratio"] == max(r["val_greedy_ratio"] for r in rows)
+
+    tuned = StrategicPolicy.load(tmp_path / "rl")  # the selected epoch, loadable as a policy
+    graphdef, params = nnx.split(tuned.model, nnx.Param)
+    assert greedy_reward_ratio(graphdef, params, train_ds) == pytest.approx(
+        selected[0]["val_greedy_ratio"], abs=1e-5
+    )
+    log = (tmp_path / "rl" / "rl_metrics.jsonl").read_text()
+    logged = [json.loads(x) for x in log.splitlines()]
+    assert logged == rows
+
+    again = finetune_rl(run, train_ds, train_ds, tmp_path / "rl", rl, seed=0, progress=False)
+    assert again == rows  # finished: nothing retrained
+    with pytest.raises(ValueError, match="another recipe"):
+        finetune_rl(run, train_ds, train_ds, tmp_path / "rl", dataclasses.replace(rl, lr=1e-3),
+                    progress=False)  # fmt: skip
+
+
+def test_selection_keeps_the_base_model_when_validation_says_so(base, tmp_path, monkeypatch):
+    """When no fine-tuned epoch plans better on validation, epoch 0 (the behaviour-cloned
+    model) stays the run's model, parameter for parameter."""
+    from bfsop_jax.training import rl as rl_module
+
+    run, train_ds, val_ds = base
+    scores = iter([0.9, 0.5, 0.7])  # epoch 0 best on validation
+    monkeypatch.setattr(rl_module, "greedy_reward_ratio", lambda *a, **k: next(scores))
+    rl = RLConfig(epochs=2, batch_size=16, samples=2, lr=1e-2)
+    rows = finetune_rl(run, train_ds, val_ds, tmp_path / "rl", rl, progress=False)
+    assert [r["selected"] for r in rows] == [True, False, False]
+    before = StrategicPolicy.load(run).params
+    after = StrategicPolicy.load(tmp_path / "rl").params
+    leaves = jax.tree_util.tree_leaves
+    for a, b in zip(leaves(before), leaves(after), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_mismatched_records_are_refused(base, tmp_path):
+    run, _, val_ds = base
+    other = dataset_from_instances(
+        [random_instance(1, num_sets=4, viewpoints=3)],
+        [solve_vns(random_instance(1, num_sets=4, viewpoints=3), seed=0, max_iters=50)],
+    )
+    with pytest.raises(ValueError, match="num_nodes"):
+        finetune_rl(run, other, val_ds, tmp_path / "rl", RLConfig(epochs=1), progress=False)
+    with pytest.raises(ValueError, match="needs a trained run"):
+        finetune_rl(tmp_path, other, val_ds, tmp_path / "rl", RLConfig(epochs=1), progress=False)
