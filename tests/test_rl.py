@@ -94,6 +94,10 @@ def test_finetuning_raises_the_greedy_reward_and_resumes(base, tmp_path):
 
     again = finetune_rl(run, train_ds, train_ds, tmp_path / "rl", rl, seed=0, progress=False)
     assert again == rows  # finished: nothing retrained
+    longer = finetune_rl(run, train_ds, train_ds, tmp_path / "rl",
+                         dataclasses.replace(rl, epochs=4), seed=0, progress=False)  # fmt: skip
+    assert [r["epoch"] for r in longer] == [0, 1, 2, 3, 4]  # extended from epoch 3
+    assert [r["val_greedy_ratio"] for r in longer[:4]] == [r["val_greedy_ratio"] for r in rows]
     with pytest.raises(ValueError, match="another recipe"):
         finetune_rl(run, train_ds, train_ds, tmp_path / "rl", dataclasses.replace(rl, lr=1e-3),
                     progress=False)  # fmt: skip

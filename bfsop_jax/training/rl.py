@@ -261,7 +261,8 @@ def finetune_rl(
         val_ds: validation records (never evaluation houses): the greedy reward ratio on
             them picks the epoch that becomes ``out_dir/model`` (epoch 0: the base model).
         out_dir: the fine-tuning run directory; an existing one with the same recipe
-            resumes after its last checkpoint, another recipe is refused.
+            resumes after its last checkpoint (a larger ``rl.epochs`` extends a finished
+            run), another recipe is refused.
         rl: the recipe.
         seed: sampling, symmetry and shuffle seed (the same seed gives the same run).
         progress: a progress bar over epochs.
@@ -293,9 +294,13 @@ def finetune_rl(
     config = {**base_config, "rl": recipe}
     config["dataset"] = {**base_config["dataset"], "rl_train": info}
     out.mkdir(parents=True, exist_ok=True)
-    if (out / ckpt.CONFIG_FILE).is_file():
+    if (out / ckpt.CONFIG_FILE).is_file():  # resuming: the same recipe (more epochs allowed)
         old = ckpt.read_config(out).get("rl")
-        if old != recipe:
+
+        def same(r):
+            return r is not None and {**r, "rl": {**r["rl"], "epochs": None}}
+
+        if same(old) != same(recipe):
             raise ValueError(f"{out} holds a fine-tuning run of another recipe: {old}")
     ckpt.write_config(out, config)
 
