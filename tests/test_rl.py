@@ -20,17 +20,9 @@ from bfsop_jax.sop.io import random_instance
 from bfsop_jax.training import RunConfig, TrainConfig, dataset_from_instances, train
 from bfsop_jax.training.bc import instances_from_dataset
 from bfsop_jax.training.rl import RLConfig, _plan_log_prob, finetune_rl, greedy_reward_ratio
+from tests.test_training import labelled  # random instances labelled by the VNS
 
 TINY = ModelConfig(d_model=32, n_layers=2, n_heads=2, d_ff=64, budget_mask=True, step_features=True)
-SETS, VIEWPOINTS = 6, 3  # N = 19 nodes, K = 7 sets
-
-
-def labelled(seeds: range) -> dict[str, np.ndarray]:
-    insts = [
-        random_instance(s, num_sets=SETS, viewpoints=VIEWPOINTS, masked_sets=s % 3) for s in seeds
-    ]
-    sols = [solve_vns(i, seed=0, max_iters=200, max_no_improve=100) for i in insts]
-    return dataset_from_instances(insts, sols)
 
 
 @pytest.fixture(scope="module")

@@ -56,6 +56,7 @@ from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_fe
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.sop.two_opt import budget_gate
 from bfsop_jax.sop.types import SOPInstance
+from bfsop_jax.training.bc import _check_dataset, _device_data, _instances, dataset_info
 from bfsop_jax.training.metrics import imitation_stats
 
 __all__ = ["RLConfig", "RLState", "finetune_rl", "greedy_reward_ratio", "make_rl_epoch"]
@@ -104,19 +105,6 @@ class RLState:
 
 def _optimizer(rl: RLConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(rl.grad_clip), optax.adam(rl.lr))
-
-
-def _instances(batch: Mapping[str, jax.Array]) -> SOPInstance:
-    b = batch["set_id"].shape[0]
-    return SOPInstance(
-        cost=batch["cost"],
-        set_id=batch["set_id"],
-        set_reward=batch["set_reward"],
-        start=jnp.zeros(b, jnp.int32),
-        end=jnp.full(b, -1, jnp.int32),
-        budget=batch["budget"],
-        coords=batch["coords"],
-    )
 
 
 def _symmetric(inst: SOPInstance, key: jax.Array | None):
@@ -220,8 +208,6 @@ def greedy_reward_ratio(
 ) -> float:
     """Mean reward of the budget-gated greedy plans (no 2-opt) over the mean teacher
     reward of a dataset."""
-    from bfsop_jax.training.bc import _device_data
-
     device = _device_data(data)
     d = int(device["set_id"].shape[0])
     sums = np.asarray(
@@ -272,8 +258,6 @@ def finetune_rl(
         ``train_sample_ratio`` (mean sampled reward / mean teacher reward), ``train_bc_loss``,
         ``seconds``; the selected epoch is marked ``"selected": true``.
     """
-    from bfsop_jax.training.bc import _check_dataset, _device_data, dataset_info
-
     base_run, out = Path(base_run), Path(out_dir)
     if not (base_run / ckpt.MODEL_DIR).is_dir():
         raise ValueError(f"reward fine-tuning needs a trained run with model/ in {base_run}")
