@@ -172,7 +172,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         "--dagger-categories", type=int, default=3,
         help="dagger: episodes (target categories) per training house and round",
     )  # fmt: skip
-    ap.add_argument("--rl-epochs", type=int, default=4, help="rl: fine-tuning epochs")
+    ap.add_argument("--rl-epochs", type=int, default=8, help="rl: fine-tuning epochs")
     ap.add_argument("--rl-lr", type=float, default=1e-4, help="rl: Adam learning rate")
     ap.add_argument("--rl-samples", type=int, default=8, help="rl: sampled plans per instance")
     ap.add_argument(
