@@ -36,6 +36,7 @@ __all__ = [
     "NodeFeatures",
     "node_features",
     "normalised_budget",
+    "random_symmetry",
     "step_features",
     "symmetric_features",
 ]
@@ -176,3 +177,14 @@ def symmetric_features(features: NodeFeatures) -> NodeFeatures:
         lambda leaf: jnp.broadcast_to(leaf, (NUM_SYMMETRIES,) + leaf.shape), features
     )
     return stacked.replace(nodes=jnp.stack(variants))
+
+
+def random_symmetry(features: NodeFeatures, key: jax.Array, apply: Any = True) -> NodeFeatures:
+    """Each row's node features under a random one of the 8 coordinate symmetries.
+
+    ``apply``: a (traced) bool; false keeps every row as it is (symmetry 0, the identity).
+    """
+    variants = symmetric_features(features).nodes  # [8, B, N, F]
+    pick = jax.random.randint(key, (variants.shape[1],), 0, NUM_SYMMETRIES)
+    pick = jnp.where(apply, pick, 0)
+    return features.replace(nodes=variants[pick, jnp.arange(variants.shape[1])])

@@ -44,7 +44,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from bfsop_jax import checkpoint as ckpt
 from bfsop_jax.data.schema import DATASET_KEYS, check_records, make_records
 from bfsop_jax.model.decode import teacher_forced_logits
-from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
+from bfsop_jax.model.features import node_features, random_symmetry
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.parallel import DATA_AXIS, barrier, mesh_size, place, to_host
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length, validate
@@ -301,11 +301,7 @@ def _teacher_forcing(
     inst = _instances(batch)
     features = None
     if key is not None:
-        features = node_features(inst)
-        variants = symmetric_features(features).nodes  # [8, B, N, F]
-        pick = jax.random.randint(key, (variants.shape[1],), 0, NUM_SYMMETRIES)
-        pick = jnp.where(augment, pick, 0)  # symmetry 0 is the identity
-        features = features.replace(nodes=variants[pick, jnp.arange(variants.shape[1])])
+        features = random_symmetry(node_features(inst), key, augment)
     return teacher_forced_logits(model, inst, batch["teacher_nodes"], features)
 
 
@@ -436,13 +432,19 @@ def make_evaluate(
     )
 
 
-@functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances"))
-def _evaluate(params, data, *, graphdef, batch_size: int, num_instances: int):
-    batch_size = min(batch_size, num_instances)
+def padded_batches(num_instances: int, batch_size: int) -> tuple[jax.Array, jax.Array]:
+    """Minibatches covering every instance once: index [M, batch] int32 (the last batch
+    padded with repeated instances) and weight [M, batch] float32 (0 on the padding)."""
     num_batches = math.ceil(num_instances / batch_size)
     slots = np.arange(num_batches * batch_size)
     index = jnp.asarray((slots % num_instances).reshape(num_batches, batch_size), jnp.int32)
     weight = jnp.asarray((slots < num_instances).reshape(num_batches, batch_size), jnp.float32)
+    return index, weight
+
+
+@functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances"))
+def _evaluate(params, data, *, graphdef, batch_size: int, num_instances: int):
+    index, weight = padded_batches(num_instances, min(batch_size, num_instances))
 
     def evaluate(params):
         def minibatch(total, xs):

@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import math
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -52,11 +51,16 @@ from flax import nnx, struct
 from bfsop_jax import checkpoint as ckpt
 from bfsop_jax.files import write_text
 from bfsop_jax.model.decode import decode, plan_value, teacher_forced_logits
-from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
+from bfsop_jax.model.features import node_features, random_symmetry
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.sop.two_opt import budget_gate
-from bfsop_jax.sop.types import SOPInstance
-from bfsop_jax.training.bc import _check_dataset, _device_data, _instances, dataset_info
+from bfsop_jax.training.bc import (
+    _check_dataset,
+    _device_data,
+    _instances,
+    dataset_info,
+    padded_batches,
+)
 from bfsop_jax.training.metrics import imitation_stats
 
 __all__ = ["RLConfig", "RLState", "finetune_rl", "greedy_reward_ratio", "make_rl_epoch"]
@@ -107,16 +111,6 @@ def _optimizer(rl: RLConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(rl.grad_clip), optax.adam(rl.lr))
 
 
-def _symmetric(inst: SOPInstance, key: jax.Array | None):
-    """Node features, each row under a random coordinate symmetry when ``key`` is given."""
-    features = node_features(inst)
-    if key is None:
-        return features
-    variants = symmetric_features(features).nodes  # [8, B, N, F]
-    pick = jax.random.randint(key, (variants.shape[1],), 0, NUM_SYMMETRIES)
-    return features.replace(nodes=variants[pick, jnp.arange(variants.shape[1])])
-
-
 def _plan_log_prob(tf) -> jax.Array:
     """[B] summed log-probability of each forced plan (its valid steps)."""
     picked = jnp.take_along_axis(tf.log_probs, tf.target[..., None], axis=-1)[..., 0]
@@ -156,7 +150,7 @@ def _rl_epoch(state: RLState, data, key, *, graphdef, rl: RLConfig, batch_size, 
         inst = _instances(batch)
         tiled = jax.tree_util.tree_map(lambda x: jnp.repeat(x, m, axis=0), inst)  # [B*M]
         sym_key, sample_key = jax.random.split(step_key)
-        feats = _symmetric(tiled, sym_key if rl.augment else None)
+        feats = random_symmetry(node_features(tiled), sym_key, rl.augment)
         model = nnx.merge(graphdef, state.params)
         plans = decode(
             model, tiled, sample_key, rl.temperature, greedy=False, features=feats
@@ -185,10 +179,7 @@ def _rl_epoch(state: RLState, data, key, *, graphdef, rl: RLConfig, batch_size, 
 
 @functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances"))
 def _greedy_sums(params, data, *, graphdef, batch_size: int, num_instances: int):
-    num_batches = math.ceil(num_instances / batch_size)
-    slots = np.arange(num_batches * batch_size)
-    index = jnp.asarray((slots % num_instances).reshape(num_batches, batch_size), jnp.int32)
-    weight = jnp.asarray((slots < num_instances).reshape(num_batches, batch_size), jnp.float32)
+    index, weight = padded_batches(num_instances, batch_size)
     model = nnx.merge(graphdef, params)
 
     def minibatch(total, xs):
