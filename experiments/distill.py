@@ -176,7 +176,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--rl-lr", type=float, default=1e-4, help="rl: Adam learning rate")
     ap.add_argument("--rl-samples", type=int, default=8, help="rl: sampled plans per instance")
     ap.add_argument(
-        "--rl-bc-weight", type=float, default=0.5,
+        "--rl-bc-weight", type=float, default=0.1,
         help="rl: weight of the teacher's cross-entropy next to the reward term",
     )  # fmt: skip
     ap.add_argument("--no-progress", action="store_true")
