@@ -48,6 +48,7 @@ from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training import RunConfig, train
 from bfsop_jax.training.bc import evaluate_imitation
+from bfsop_jax.training.rl import RLConfig
 from bfsop_jax.viz import plot_distance_mass, plot_tour_comparison
 
 
@@ -173,10 +174,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         help="dagger: episodes (target categories) per training house and round",
     )  # fmt: skip
     ap.add_argument("--rl-epochs", type=int, default=8, help="rl: fine-tuning epochs")
-    ap.add_argument("--rl-lr", type=float, default=1e-4, help="rl: Adam learning rate")
-    ap.add_argument("--rl-samples", type=int, default=8, help="rl: sampled plans per instance")
+    ap.add_argument("--rl-lr", type=float, default=RLConfig.lr, help="rl: Adam learning rate")
     ap.add_argument(
-        "--rl-bc-weight", type=float, default=0.1,
+        "--rl-samples", type=int, default=RLConfig.samples, help="rl: sampled plans per instance"
+    )
+    ap.add_argument(
+        "--rl-bc-weight", type=float, default=RLConfig.bc_weight,
         help="rl: weight of the teacher's cross-entropy next to the reward term",
     )  # fmt: skip
     ap.add_argument("--no-progress", action="store_true")
@@ -467,7 +470,7 @@ def stage_rl(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> 
     training records, into ``<out>/rl``; the validation houses' greedy reward picks the
     epoch (``rl.md``, ``rl.png``). Evaluate it with ``--stage eval --checkpoint <out>/rl``."""
     from bfsop_jax.files import write_text
-    from bfsop_jax.training.rl import RLConfig, finetune_rl
+    from bfsop_jax.training.rl import finetune_rl
     from bfsop_jax.viz import plot_rl
 
     base = Path(args.checkpoint) if args.checkpoint else out
