@@ -265,6 +265,39 @@ def test_distance_matrix_properties():
     assert np.isinf(m).any() and np.isfinite(m[valid][:, valid]).any()
 
 
+def test_distance_matrix_solves_valid_sources_only_and_equals_dense_fields():
+    """Batched matrices pool the valid sources of all rows into chunks (several chunks,
+    rows with none): values equal the fields read at the cells, bit for bit."""
+    from bfsop_jax.navigation.distance import MATRIX_CHUNK
+
+    rng = np.random.default_rng(21)
+    n_maps, s = 3, 12
+    maps = np.stack([random_blocked(rng, 0.2) for _ in range(n_maps)])
+    cells = np.stack([random_free_cells(rng, b, s) for b in maps])
+    valid = rng.random((n_maps, s)) < 0.7
+    valid[:, 0] = True
+    valid[2] = False  # a row with no valid point at all
+    assert valid.sum() > MATRIX_CHUNK  # more than one chunk of lanes
+    xy = np.stack([cells_to_xy(c) for c in cells])
+    matrices = jax.jit(jax.vmap(lambda b, p, v: distance_matrix(b, p, v, PRESET)))
+    got = np.asarray(matrices(maps, xy, valid))
+    fields = jax.jit(jax.vmap(lambda b, c, v: distance_fields_from_cells(b, c, v, PRESET)))(
+        maps, cells, valid
+    )
+    for k in range(n_maps):
+        f = np.asarray(fields[k])[:, cells[k, :, 0], cells[k, :, 1]]
+        want = np.minimum(f, f.T)
+        want[~valid[k]] = np.inf
+        want[:, ~valid[k]] = np.inf
+        np.fill_diagonal(want, np.where(valid[k], 0.0, np.inf))
+        np.testing.assert_array_equal(got[k], want)
+        alone = jax.jit(distance_matrix, static_argnums=3)(
+            maps[k], xy[k], valid[k], PRESET
+        )
+        np.testing.assert_array_equal(np.asarray(alone), got[k])
+    assert np.isinf(got[2]).all()
+
+
 def test_vmap_over_maps_and_no_retrace():
     rng = np.random.default_rng(11)
     maps = np.stack([random_blocked(rng, 0.2) for _ in range(3)])

@@ -64,6 +64,9 @@ __all__ = [
     "sweep_rounds",
 ]
 
+# Valid sources of distance matrices solved together (lanes of one chunk; see
+# ``_matrix_lanes``).
+MATRIX_CHUNK = 16
 SNAP_RADIUS = 3  # planning cells searched around a blocked source (0.6 m at 0.2 m cells)
 _INF = np.float32(np.inf)
 # one round of sweeps: (axis, reverse); rows down, rows up, columns right, columns left
@@ -245,6 +248,76 @@ def _solve(blocked: jax.Array, src: jax.Array, src_ok: jax.Array, pc: float):
     return dp[:, :, 0], rounds
 
 
+def _matrix_lanes(
+    blocked: jax.Array, cells: jax.Array, ok: jax.Array, pc: float, chunk: int
+) -> jax.Array:
+    """Raw distance matrices of M maps, solving only the valid sources.
+
+    ``blocked`` [M, Hp, Wp] bool, ``cells`` [M, S, 2] int32 free cells, ``ok`` [M, S] bool.
+    Returns [M, S, S] float32 with ``out[m, a, b]`` the field of source a of map m read at
+    cell b (``inf`` rows for invalid sources).
+
+    Only the valid (map, source) pairs are solved: they are gathered into chunks of
+    ``chunk`` lanes, each lane carrying its own map, and the chunks run one after another
+    (as many as the valid pairs need; none when there are none). SOP instances are mostly
+    padding (an instance posed over one or two landmarks uses a handful of its
+    ``1 + n_loi * n_viewpoints`` nodes), so this solves a fraction of the lanes a dense
+    [M, S] layout would. A lane's sweeps do not depend on the other lanes of its chunk,
+    and a converged lane is unchanged by further rounds, so the values equal the dense
+    solver's bit for bit.
+    """
+    m, s = ok.shape
+    total = m * s
+    size = min(chunk, total)
+    flat_ok = ok.reshape(total)
+    count = jnp.sum(flat_ok, dtype=jnp.int32)
+    order = jnp.nonzero(flat_ok, size=total, fill_value=0)[0].astype(jnp.int32)
+    order = jnp.concatenate([order, jnp.zeros(size, jnp.int32)])  # room for the last chunk
+    flat_cells = cells.reshape(total, 2)
+    lane = jnp.arange(size)
+
+    def one_chunk(r, out):
+        pairs = lax.dynamic_slice(order, (r * size,), (size,))
+        real = r * size + lane < count
+        maps = pairs // s
+        dp, _ = _solve_lanes(blocked[maps], flat_cells[pairs][:, None], real[:, None], pc)
+        read = cells[maps]  # [C, S, 2]: every cell of the lane's map
+        got = dp[read[..., 0] + 1, read[..., 1] + 1, lane[:, None], 0]  # [C, S]
+        into = jnp.where(real, pairs, total)  # padding lanes are dropped
+        return out.at[into].set(got, mode="drop")
+
+    rounds = (count + size - 1) // size
+    out = lax.fori_loop(0, rounds, one_chunk, jnp.full((total, s), _INF))
+    return out.reshape(m, s, s)
+
+
+@functools.cache
+def _matrix_solver(pc: float, chunk: int):
+    """``_matrix_lanes`` whose ``jax.vmap`` folds the batch into the maps (one pool of
+    valid lanes for the whole batch)."""
+
+    @jax.custom_batching.custom_vmap
+    def solve(blocked, cells, ok):
+        return _matrix_lanes(blocked, cells, ok, pc, chunk)
+
+    @solve.def_vmap
+    def _batched(axis_size, in_batched, blocked, cells, ok):
+        a = axis_size
+        blocked, cells, ok = (
+            x if b else jnp.broadcast_to(x, (a, *x.shape))
+            for x, b in zip((blocked, cells, ok), in_batched, strict=True)
+        )
+        m, s = ok.shape[-2:]
+        out = solve(
+            blocked.reshape(a * m, *blocked.shape[-2:]),
+            cells.reshape(a * m, s, 2),
+            ok.reshape(a * m, s),
+        )
+        return out.reshape(a, m, s, s), True
+
+    return solve
+
+
 def _check_blocked(blocked: jax.Array, preset: Preset) -> None:
     if blocked.shape[-2:] != tuple(preset.plan_shape):
         raise ValueError(
@@ -325,8 +398,8 @@ def distance_matrix(
     blocked = jnp.asarray(blocked, bool)
     cells, found = snap_to_free(blocked, xy_to_plan_cell(points_xy, preset))
     ok = valid & found
-    dp, _ = _solve(blocked, cells, ok, preset.plan_cell_size)  # [Hp + 2, Wp + 2, S]
-    m = dp[cells[:, 0] + 1, cells[:, 1] + 1].T  # m[a, b] = field a at cell b
+    solve = _matrix_solver(float(preset.plan_cell_size), MATRIX_CHUNK)
+    m = solve(blocked[None], cells[None], ok[None])[0]  # m[a, b] = field a at cell b
     m = jnp.minimum(m, m.T)
     pair_ok = ok[:, None] & ok[None, :]
     m = jnp.where(pair_ok, m, _INF)
