@@ -258,7 +258,8 @@ def _matrix_lanes(
     cell b (``inf`` rows for invalid sources).
 
     Only the valid (map, source) pairs are solved: they are gathered into chunks of
-    ``chunk`` lanes, each lane carrying its own map, and the chunks run one after another
+    ``chunk`` lanes, each lane carrying its own map (with M = 1 the lanes share the map's
+    costs, as in the dense layout), and the chunks run one after another
     (as many as the valid pairs need; none when there are none). SOP instances are mostly
     padding (an instance posed over one or two landmarks uses a handful of its
     ``1 + n_loi * n_viewpoints`` nodes), so this solves a fraction of the lanes a dense
@@ -279,10 +280,14 @@ def _matrix_lanes(
     def one_chunk(r, out):
         pairs = lax.dynamic_slice(order, (r * size,), (size,))
         real = r * size + lane < count
-        maps = pairs // s
-        dp, _ = _solve_lanes(blocked[maps], flat_cells[pairs][:, None], real[:, None], pc)
-        read = cells[maps]  # [C, S, 2]: every cell of the lane's map
-        got = dp[read[..., 0] + 1, read[..., 1] + 1, lane[:, None], 0]  # [C, S]
+        if m == 1:  # one map: the chunk's lanes share its costs (cheaper sweeps)
+            dp, _ = _solve_lanes(blocked, flat_cells[pairs][None], real[None], pc)
+            got = dp[cells[0, :, 0] + 1, cells[0, :, 1] + 1, 0].T  # [C, S]
+        else:
+            maps = pairs // s
+            dp, _ = _solve_lanes(blocked[maps], flat_cells[pairs][:, None], real[:, None], pc)
+            read = cells[maps]  # [C, S, 2]: every cell of the lane's map
+            got = dp[read[..., 0] + 1, read[..., 1] + 1, lane[:, None], 0]  # [C, S]
         into = jnp.where(real, pairs, total)  # padding lanes are dropped
         return out.at[into].set(got, mode="drop")
 
