@@ -12,6 +12,10 @@ random free planning cells, and times after compilation:
 - ``distance_matrix`` for those points (the SOP cost matrix of docs/design.md §7.1),
 - one ``distance_field`` (what the environment computes per macro step),
 - ``jax.vmap`` of ``distance_field`` over a batch of 16 maps (batched rollouts),
+- the in-loop case: ``jax.vmap`` of ``distance_matrix`` over 8 maps whose instances hold
+  one to three landmarks' viewpoints (6-16 valid points of ``n_points``), against the
+  dense layout that solves a field for every point slot (``distance_fields_from_cells``
+  read at the points), side by side, with their ratio,
 
 plus the number of sweep rounds the solver needed. Times are wall-clock milliseconds
 with ``block_until_ready``; compile time is reported separately.
@@ -29,6 +33,7 @@ from benchmarks.timing import time_calls
 from bfsop_jax.config import PRESET_NAMES, get_preset
 from bfsop_jax.navigation import (
     distance_field,
+    distance_fields_from_cells,
     distance_matrix,
     plan_cell_to_xy,
     true_blocked,
@@ -36,6 +41,7 @@ from bfsop_jax.navigation import (
 from bfsop_jax.navigation.distance import sweep_rounds
 
 ENV_BATCH = 16
+SWITCH_BATCH = 8  # rows of one sparse_cond sub-batch (instances posed together)
 
 
 def handmade_occupancy(preset, rng: np.random.Generator) -> np.ndarray:
@@ -124,6 +130,7 @@ def run(
     bmaps = np.concatenate([maps] * reps)[:ENV_BATCH]
     bxy = np.concatenate([xy[:, 0]] * reps)[:ENV_BATCH]
     batch_first, batch_ms = _time(batch, bmaps, bxy, preset, repeats=repeats)
+    sparse_ms, dense_ms = _in_loop_matrices(preset, maps, points, repeats)
     return {
         "preset": preset.name,
         "plan_shape": preset.plan_shape,
@@ -135,8 +142,32 @@ def run(
         "sweep_rounds": n_rounds,
         "field_ms_median": float(np.median(field_ms)),
         f"vmap{ENV_BATCH}_fields_ms_median": float(np.median(batch_ms)),
+        "in_loop_valid_lanes_ms_median": sparse_ms,
+        "in_loop_dense_ms_median": dense_ms,
+        "in_loop_speedup": dense_ms / sparse_ms,
         "device": jax.devices()[0].platform,
     }
+
+
+def _in_loop_matrices(preset, maps, points, repeats: int) -> tuple[float, float]:
+    """Median ms of 8 vmapped in-loop matrices: valid lanes only, and the dense layout."""
+    rng = np.random.default_rng(2)
+    rows = [k % len(maps) for k in range(SWITCH_BATCH)]
+    n = points.shape[1]
+    valid = np.zeros((SWITCH_BATCH, n), bool)
+    for r in range(SWITCH_BATCH):  # the start and one to three landmarks' viewpoints
+        valid[r, : 1 + preset.n_viewpoints * int(rng.integers(1, 4))] = True
+    bmaps, bpoints = maps[rows], points[rows]
+    bxy = np.asarray(plan_cell_to_xy(bpoints, preset))
+
+    def dense(blocked, cells, ok):
+        f = distance_fields_from_cells(blocked, cells, ok, preset)[:, cells[:, 0], cells[:, 1]]
+        return jnp.minimum(f, f.T)
+
+    sparse = jax.jit(jax.vmap(lambda b, p, v: distance_matrix(b, p, v, preset)))
+    sparse_ms = _time(sparse, bmaps, bxy, valid, repeats=repeats)[1]
+    dense_ms = _time(jax.jit(jax.vmap(dense)), bmaps, bpoints, valid, repeats=repeats)[1]
+    return float(np.median(sparse_ms)), float(np.median(dense_ms))
 
 
 def main() -> None:
@@ -154,7 +185,11 @@ def main() -> None:
             f"{r['matrix_ms_median']:.1f} ms median ({r['matrix_ms_min']:.1f} min), "
             f"compile {r['compile_s']:.2f} s, sweep rounds {r['sweep_rounds']}; "
             f"one field {r['field_ms_median']:.2f} ms; "
-            f"vmap over {ENV_BATCH} maps {r[f'vmap{ENV_BATCH}_fields_ms_median']:.1f} ms"
+            f"vmap over {ENV_BATCH} maps {r[f'vmap{ENV_BATCH}_fields_ms_median']:.1f} ms; "
+            f"in-loop matrices ({SWITCH_BATCH} rows, 6-16 valid points): valid lanes "
+            f"{r['in_loop_valid_lanes_ms_median']:.1f} ms, dense "
+            f"{r['in_loop_dense_ms_median']:.1f} ms, "
+            f"dense/valid-lanes speedup {r['in_loop_speedup']:.1f}x"
         )
 
 
