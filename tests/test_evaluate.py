@@ -108,6 +108,19 @@ def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
     assert not out.exists()
 
 
+def test_scan_runs_only_the_grids_of_the_given_methods(tmp_path):
+    args = ["--scan", "--preset", "smoke", "--house-seeds", "2000000:2000001", "--categories",
+            "HousePlant", "--batch", "1", "--no-progress"]  # fmt: skip
+    rows = evaluate.main(args + ["--methods", "bfs_global", "--out", str(tmp_path)])
+    assert {r["method"] for r in rows} == {"bfs_global"}
+    grid = evaluate.SCAN_GRID["bfs_global"]
+    assert sorted(map(json.dumps, (r["setting"] for r in rows))) == sorted(map(json.dumps, grid))
+    best = json.loads((tmp_path / "scan.json").read_text())["best"]
+    assert best == {"bfs_global": max(rows, key=lambda r: r["ppl_mean"])["setting"]}
+    with pytest.raises(SystemExit, match="none of the methods has a grid"):
+        evaluate.main(args + ["--methods", "fbe", "--out", str(tmp_path / "x")])
+
+
 def test_verification_points_give_a_sane_optimal_length():
     preset = get_preset("smoke")
     houses = nav.HouseSet(preset)
