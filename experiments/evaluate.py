@@ -37,6 +37,7 @@ from bfsop_jax.config import (
     parse_seed_range,
 )
 from bfsop_jax.eval import navigation as nav
+from bfsop_jax.files import write_text
 from bfsop_jax.world.constants import TARGET_NAMES, target_id
 
 SCAN_GRID: dict[str, list[dict[str, Any]]] = {
@@ -103,7 +104,8 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
               f"methods are {', '.join(nav.METHODS)}")  # fmt: skip
     checked["methods"] = methods
     if args.scan:
-        checked["scan"] = [m for m in SCAN_GRID if _settings_key(m) in map(_settings_key, methods)]
+        keys = {_settings_key(m) for m in methods}
+        checked["scan"] = [m for m in SCAN_GRID if _settings_key(m) in keys]
         if not checked["scan"]:
             _fail(f"--scan: none of the methods has a grid; scanned methods are "
                   f"{', '.join(SCAN_GRID)} (bfsop_vns shares bfsop_st's)")  # fmt: skip
@@ -211,8 +213,8 @@ def run_scan(args: argparse.Namespace, c: dict[str, Any], out: Path) -> list[dic
     best = {m: max((r for r in rows if r["method"] == m), key=lambda r: r["ppl_mean"])["setting"]
             for m in c["scan"]}  # fmt: skip
     lines += ["", f"Best settings: `{json.dumps(best)}`"]
-    (out / "scan.md").write_text("\n".join(lines) + "\n")
-    (out / "scan.json").write_text(json.dumps({"rows": rows, "best": best}, indent=1) + "\n")
+    write_text(out / "scan.md", "\n".join(lines) + "\n")
+    write_text(out / "scan.json", json.dumps({"rows": rows, "best": best}, indent=1) + "\n")
     print("\n".join(lines))
     return rows
 
