@@ -41,6 +41,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from bfsop_jax import files
 from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import DataConfig, generate_dataset, pose_tasks
 from bfsop_jax.data.shards import merge_datasets
@@ -48,6 +49,7 @@ from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training import RunConfig, train
 from bfsop_jax.training.bc import evaluate_imitation
+from bfsop_jax.training.config import MODEL_PRESETS
 from bfsop_jax.training.rl import RLConfig
 from bfsop_jax.viz import plot_distance_mass, plot_tour_comparison
 
@@ -93,9 +95,18 @@ PRESETS: dict[str, DistillPreset] = {
         lrs=(1e-3,),
         eval_houses=4,
     ),
-    # the paper setting (~1e5 step-level transitions; meant for a GPU and a long run)
+    # the paper setting (~1e5 step-level transitions; meant for a GPU and a long run). The
+    # teacher labels at 500 / 250 iterations, as on demo (docs/results.md compares these
+    # labels with the reference configuration's rewards on paper instances)
     "paper": DistillPreset(
-        data=DataConfig(preset="paper", houses=1024, houses_per_shard=8, tasks_per_house=24),
+        data=DataConfig(
+            preset="paper",
+            houses=1024,
+            houses_per_shard=4,
+            tasks_per_house=48,
+            vns_iters=500,
+            vns_no_improve=250,
+        ),  # fmt: skip
         val_houses=64,
         model="paper",
         lrs=(1e-4,),
@@ -122,6 +133,18 @@ PRESETS: dict[str, DistillPreset] = {
         nav_categories=("HousePlant",),
         nav_methods=("fbe",),
     ),
+}
+
+# the planners ``--compare`` runs for each other model (greedy + 2-opt and the options
+# that stay under 10 ms on a 2-core CPU)
+COMPARE_PLANNERS = {
+    name: solver_eval.PLANNERS[name]
+    for name in (
+        "transformer+2opt",
+        "transformer+2opt+fill",
+        "transformer+2opt+best_of_4+fill",
+        "transformer+2opt+multi_start+fill",
+    )
 }
 
 ABLATIONS = {
@@ -157,10 +180,25 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--houses", type=int, default=None, help="override: training houses")
     ap.add_argument("--tasks", type=int, default=None, help="override: virtual tasks per house")
     ap.add_argument("--epochs", type=int, default=None, help="override: training epochs")
+    ap.add_argument(
+        "--model", default=None, choices=sorted(MODEL_PRESETS),
+        help="override: model size preset (default: the preset's; demo d=64 x 3 layers, "
+        "paper d=128 x 6 layers)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--lr", type=float, default=None,
+        help="override: Adam learning rate of behaviour cloning (the preset's: demo 1e-3, "
+        "paper 1e-4)",
+    )  # fmt: skip
     ap.add_argument("--resume", action="store_true", help="continue an interrupted training run")
     ap.add_argument("--ablations", action="store_true", help="also train the ablations")
     ap.add_argument("--eval-tasks", type=int, default=None, help="override: tasks per eval house")
     ap.add_argument("--no-navigation", action="store_true", help="skip the navigation stage")
+    ap.add_argument(
+        "--compare", default=None, metavar="DIR1,DIR2,...",
+        help="eval: other models (run directories or the shipped 'demo' / 'paper') planned "
+        "on the same instances against the same teacher plans",
+    )  # fmt: skip
     ap.add_argument("--rounds", type=int, default=3, help="dagger: DAgger rounds")
     ap.add_argument(
         "--dagger-epochs", type=int, default=10, help="dagger: training epochs per round"
@@ -186,6 +224,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     args = ap.parse_args(argv)
     if args.stage is None:
         args.stage = "data" if args.merge_data else "all"
+    if args.compare is not None:
+        args.compare = [d for d in (x.strip() for x in args.compare.split(",")) if d]
+        if not args.compare:
+            raise ValueError("--compare expects a comma-separated list of models")
+    if args.lr is not None and not args.lr > 0:
+        raise ValueError(f"--lr must be a positive learning rate, got {args.lr}")
     if args.shard is not None:
         args.shard = _parse_shard(args.shard)
         if args.stage == "eval":
@@ -221,17 +265,33 @@ def _data_config(args, preset: DistillPreset) -> DataConfig:
     return cfg
 
 
+def _n_val_shards(cfg: DataConfig, val_houses: int) -> int:
+    """Validation shards: those of the last ``val_houses`` houses, but never more than a
+    sixteenth of the dataset (at least one shard) when ``--houses`` shrinks it."""
+    if cfg.n_shards < 2:
+        return 0
+    houses = min(val_houses, max(cfg.houses_per_shard, cfg.houses // 16))
+    return max(1, -(-houses // cfg.houses_per_shard))
+
+
 def _split(store, cfg: DataConfig, val_houses: int):
-    """Training and validation dicts: the shards of the last ``val_houses`` houses validate."""
-    n_val = max(1, -(-val_houses // cfg.houses_per_shard)) if cfg.n_shards > 1 else 0
+    """Training and validation dicts: the shards of the last validation houses
+    (:func:`_n_val_shards`) validate."""
+    n_val = _n_val_shards(cfg, val_houses)
     shards = list(range(cfg.n_shards))
     train_ds = store.load(shards[: len(shards) - n_val])
     val_ds = store.load(shards[len(shards) - n_val :]) if n_val else None
     return train_ds, val_ds
 
 
-def _run_config(preset: DistillPreset, data_cfg: DataConfig, epochs: int | None, **model_kw):
-    base = RunConfig.named(preset.model, preset=data_cfg.preset)
+def _run_config(
+    preset: DistillPreset,
+    data_cfg: DataConfig,
+    epochs: int | None,
+    model_name: str | None = None,
+    **model_kw,
+):
+    base = RunConfig.named(model_name or preset.model, preset=data_cfg.preset)
     model = dataclasses.replace(base.model, **{**dict(preset.model_options), **model_kw})
     recipe = dataclasses.replace(base.train, augment=preset.augment)
     if epochs is not None or preset.epochs is not None:
@@ -294,14 +354,15 @@ def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) 
             runs[name] = (out / "ablations" / name, kw)
     summary = {}
     for name, (run_dir, kw) in runs.items():
-        config = _run_config(preset, cfg, args.epochs, **kw)
+        config = _run_config(preset, cfg, args.epochs, args.model, **kw)
         resume = args.resume and (run_dir / "checkpoints").exists()
         if (run_dir / "model").is_dir() and not args.resume:
             print(f"{name}: trained model found in {run_dir}, kept (pass --resume to continue)")
         else:
             t0 = time.perf_counter()
             print(f"training {name} ({config.train.epochs} epochs) -> {run_dir}")
-            train(config, train_ds, val_ds, run_dir, seeds=preset.seeds, lrs=preset.lrs,
+            train(config, train_ds, val_ds, run_dir, seeds=preset.seeds,
+                  lrs=(args.lr,) if args.lr is not None else preset.lrs,
                   resume=resume, progress=not args.no_progress, dataset_meta=meta)  # fmt: skip
             print(f"  {time.perf_counter() - t0:.0f} s")
         policy = StrategicPolicy.load(run_dir)
@@ -353,6 +414,14 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
             ablation_rows[name] = {**info, **{k: row[k] for k in ("mean_reward", "mean_cost",
                                                                  "reward_ratio")}}  # fmt: skip
         result["ablations"] = ablation_rows
+    if args.compare:
+        result["compare"] = {str(checkpoint): result["planners"]}
+        for other in args.compare:
+            sub = solver_eval.evaluate_solvers(
+                StrategicPolicy.load(other), instances, planners=COMPARE_PLANNERS,
+                progress=not args.no_progress, teacher=evaluation.teacher,
+            )  # fmt: skip
+            result["compare"][other] = sub.summary["planners"]
     out.mkdir(parents=True, exist_ok=True)
     _figures(policy, instances, evaluation, out)
     solver_eval.write_json(result, out / "solver_eval.json")
@@ -361,6 +430,9 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
         f"{n} instances, {result['machine']}, {result['date']}. Checkpoint: `{checkpoint}`."
     )
     text = solver_eval.write_tables(result, out / "tables.md", ablation_rows, header)
+    if args.compare:
+        text += solver_eval.compare_table(result["compare"], COMPARE_PLANNERS)
+        files.write_text(out / "tables.md", text)
     print(text)
     if preset.nav_houses > 0 and not args.no_navigation:
         result["navigation"] = stage_navigation(args, preset, out, policy, checkpoint)
@@ -419,7 +491,7 @@ def stage_dagger(args, preset: DistillPreset, store, cfg: DataConfig, out: Path)
         categories_per_house=args.dagger_categories,
     )  # fmt: skip
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
-    n_val = max(1, -(-preset.val_houses // cfg.houses_per_shard)) if cfg.n_shards > 1 else 0
+    n_val = _n_val_shards(cfg, preset.val_houses)
     train_houses = min(cfg.houses, (cfg.n_shards - n_val) * cfg.houses_per_shard)
     seeds = np.arange(cfg.seed_start, cfg.seed_start + train_houses)
     dagger_dir = out / "dagger"

@@ -74,6 +74,20 @@ def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
     assert "Table II" in text and "Table III" in text and "VNS teacher" in text
     assert (tmp_path / "tables.md").read_text() == text
 
+    # per-instance rewards: paired differences against greedy insertion, and the
+    # side-by-side table of several models
+    row = p["transformer+2opt"]
+    assert len(row["rewards"]) == 6 and np.mean(row["rewards"]) == pytest.approx(
+        row["mean_reward"], rel=1e-5
+    )
+    d, lo, hi = solver_eval.paired_vs(result, "transformer+2opt")
+    expect = (np.asarray(row["rewards"]) - np.asarray(p["greedy_insertion"]["rewards"])).mean()
+    assert d == pytest.approx(expect / p["vns"]["mean_reward"], abs=1e-6)
+    assert lo <= d <= hi
+    table = solver_eval.compare_table({"a": p, "b": p}, planners)
+    assert table.count("| a | transformer") == 2 and table.count("| b | transformer") == 2
+    assert f"{row['reward_ratio']:.3f} | {d:+.3f} [{lo:+.3f}, {hi:+.3f}]" in table
+
 
 def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
     mass = solver_eval.decoder_distance_mass(policy, batch, batch=4)
@@ -127,6 +141,15 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     ev2 = json.loads((other / "solver_eval.json").read_text())
     assert ev2["house_seeds"] == [EVAL_SEED_START + 5, EVAL_SEED_START + 6]
     assert (other / "tables.md").is_file()
+    # another model on the same instances against the same teacher plans
+    distill.main(["--preset", "smoke", "--stage", "eval", "--checkpoint", str(run),
+                  "--eval-seeds", seeds, "--out", str(other), "--no-progress",
+                  "--no-navigation", "--compare", "demo"])  # fmt: skip
+    ev3 = json.loads((other / "solver_eval.json").read_text())
+    assert list(ev3["compare"]) == [str(run), "demo"]
+    assert ev3["compare"]["demo"]["vns"] == ev3["planners"]["vns"]  # one teacher run
+    assert set(ev3["compare"]["demo"]) >= set(distill.COMPARE_PLANNERS)
+    assert "| demo | transformer+2opt |" in (other / "tables.md").read_text()
 
     # DAgger: one round in which the trained student drives and the teacher labels
     dagger = ["--preset", "smoke", "--stage", "dagger", "--out", str(run), "--data-dir",

@@ -35,6 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 from bfsop_jax import files
+from bfsop_jax.metrics import paired_bootstrap_ci
 from bfsop_jax.sop import Solution, SOPInstance, solve_greedy, solve_vns
 from bfsop_jax.viz import plot_distance_mass, plot_tour_comparison  # re-exported: drawn in viz
 
@@ -43,7 +44,9 @@ __all__ = [
     "SolverEvaluation",
     "decoder_distance_mass",
     "evaluate_solvers",
+    "compare_table",
     "evaluate_teacher",
+    "paired_vs",
     "plot_distance_mass",
     "plot_tour_comparison",
     "take",
@@ -81,7 +84,21 @@ def _summary(rewards: list[float], costs: list[float], single_ms: list[float]) -
         "mean_cost": float(np.mean(costs)),
         "latency_ms_single": float(statistics.median(single_ms)),
         "latency_ms_single_mean": float(np.mean(single_ms)),
+        "rewards": [round(float(r), 6) for r in rewards],  # per instance (paired intervals)
     }
+
+
+def paired_vs(
+    result: dict[str, Any], name: str, other: str = "greedy_insertion", seed: int = 0
+) -> tuple[float, float, float]:
+    """Paired reward difference of planner ``name`` over ``other`` on the same instances,
+    in units of the VNS's mean reward (so it reads as a difference of reward ratios):
+    ``(mean, lo, hi)`` with a 95 % percentile bootstrap interval over instances."""
+    p = result["planners"]
+    scale = max(p["vns"]["mean_reward"], 1e-12)
+    a = np.asarray(p[name]["rewards"]) / scale
+    b = np.asarray(p[other]["rewards"]) / scale
+    return paired_bootstrap_ci(a, b, seed=seed)
 
 
 def _run_host_solver(fn, instances: SOPInstance, desc: str, progress: bool):
@@ -343,3 +360,45 @@ def decoder_distance_mass(policy, instances: SOPInstance, batch: int = 64) -> np
                     sums[1] += share
                     counts[1] += 1
     return sums / np.maximum(counts, 1)[:, None]
+
+
+def compare_table(
+    models: dict[str, dict[str, Any]], planners: dict[str, dict[str, Any]] | None = None
+) -> str:
+    """Markdown table of several models on the same instances and teacher plans.
+
+    Args:
+        models: model label -> the ``planners`` dictionary of its evaluation summary (each
+            holds ``vns`` and ``greedy_insertion`` of the same instances).
+        planners: the planner rows to show (default: every planner the models share).
+
+    Each row gives the reward ratio to the VNS, the paired difference to greedy insertion
+    on the same instances (in reward-ratio units, 95 % bootstrap interval), the median
+    single-instance latency and the speedup over the VNS.
+    """
+    first = next(iter(models.values()))
+    names = list(planners or [n for n in first if n not in ("vns", "greedy_insertion")])
+    g = first["greedy_insertion"]
+    vns = first["vns"]
+    lines = [
+        "",
+        "## Models side by side (same instances, same teacher plans)",
+        "",
+        f"Greedy insertion: reward / VNS {g['mean_reward'] / max(vns['mean_reward'], 1e-12):.3f}"
+        f" at {g['latency_ms_single']:.1f} ms.",
+        "",
+        "| model | planner | reward / VNS | minus greedy insertion [95% CI] "
+        "| latency single (ms) | speedup vs VNS |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, p in models.items():
+        for name in names:
+            if name not in p:
+                continue
+            d, lo, hi = paired_vs({"planners": p}, name)
+            row = p[name]
+            lines.append(
+                f"| {label} | {name} | {row['reward_ratio']:.3f} | {d:+.3f} [{lo:+.3f}, {hi:+.3f}] "
+                f"| {row['latency_ms_single']:.2f} | {row['speedup']:.0f}x |"
+            )
+    return "\n".join(lines) + "\n"
