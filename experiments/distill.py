@@ -96,8 +96,8 @@ PRESETS: dict[str, DistillPreset] = {
         eval_houses=4,
     ),
     # the paper setting (~1e5 step-level transitions; meant for a GPU and a long run). The
-    # teacher labels at 500 / 250 iterations, as on demo (docs/results.md compares these
-    # labels with the reference configuration's rewards on paper instances)
+    # teacher labels at 500 / 250 iterations, as on demo (`python -m benchmarks.bench_labels
+    # --preset paper` compares these labels with the reference configuration's rewards)
     "paper": DistillPreset(
         data=DataConfig(
             preset="paper",
@@ -182,8 +182,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--epochs", type=int, default=None, help="override: training epochs")
     ap.add_argument(
         "--model", default=None, choices=sorted(MODEL_PRESETS),
-        help="override: model size preset (default: the preset's; demo d=64 x 3 layers, "
-        "paper d=128 x 6 layers)",
+        help="override: model size preset and its training recipe (default: the preset's; "
+        "demo d=64 x 3 layers, paper d=128 x 6 layers)",
     )  # fmt: skip
     ap.add_argument(
         "--lr", type=float, default=None,
