@@ -111,6 +111,32 @@ def test_generated_virtual_tasks_are_valid_and_labelled(tmp_path):
     assert store.shard_path(0).stat().st_mtime_ns == mtime
 
 
+def test_dataset_grows_to_more_houses_keeping_its_full_shards(tmp_path):
+    """--houses raised on an existing dataset: full shards are kept, a partial last one
+    is made again, and the result equals a dataset generated at the larger size."""
+    cfg = DataConfig(
+        preset="smoke", houses=3, houses_per_shard=2, tasks_per_house=2, vns_iters=20,
+        vns_no_improve=10, on_trajectory=False,
+    )  # fmt: skip
+    store = generate_dataset(tmp_path / "ds", cfg, progress=False)
+    assert store.meta["shards"]["1"]["house_seeds"] == [2, 2]
+    mtime = store.shard_path(0).stat().st_mtime_ns
+    bigger = dataclasses.replace(cfg, houses=4)
+    grown = generate_dataset(tmp_path / "ds", bigger, progress=False)
+    assert grown.config["houses"] == 4 and grown.complete_shards() == [0, 1]
+    assert grown.meta["shards"]["1"]["house_seeds"] == [2, 3]
+    assert grown.shard_path(0).stat().st_mtime_ns == mtime
+    fresh = generate_dataset(tmp_path / "fresh", bigger, progress=False).load()
+    got = grown.load()
+    for k in fresh:
+        assert np.array_equal(got[k], fresh[k]), k
+    # fewer houses, or any other change, is still another configuration
+    with pytest.raises(ValueError, match="another configuration"):
+        generate_dataset(tmp_path / "ds", cfg, progress=False)
+    with pytest.raises(ValueError, match="another configuration"):
+        generate_dataset(tmp_path / "ds", dataclasses.replace(bigger, houses=6, vns_iters=30))
+
+
 # -- generation over several machines: --shard I/N and merge_datasets ------------------------
 def _rezip(path, date_time=(1980, 1, 1, 0, 0, 0)):
     """The same archive members with other zip timestamps (a shard made at another time)."""

@@ -21,6 +21,7 @@ episode, labelled afterwards: the DAgger rows of :func:`student_records`).
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import time
 from pathlib import Path
@@ -308,6 +309,7 @@ def generate_dataset(
     so several processes or hosts can split the seed range.
     """
     preset = get_preset(config.preset)
+    _grow(out_dir, config)
     store = ShardStore(out_dir, dataclasses.asdict(config))
     i_shard, n_proc = shard
     if not (0 <= i_shard < n_proc):
@@ -330,6 +332,32 @@ def generate_dataset(
         bar.update(len(seeds))
     bar.close()
     return store
+
+
+def _grow(out_dir: str | Path, config: DataConfig) -> None:
+    """Let ``out_dir`` grow to ``config.houses``: a dataset made with the same
+    configuration but fewer houses keeps its full shards (shard ``s`` always holds the
+    houses ``seed_start + s * houses_per_shard ...``, so their records do not depend on
+    the house count) and its ``meta.json`` takes the new configuration; a partial last
+    shard is dropped and generated again. Anything else is left to :class:`ShardStore`,
+    which refuses a directory made with another configuration."""
+    meta_path = Path(out_dir) / "meta.json"
+    if not meta_path.exists():
+        return
+    try:
+        meta = json.loads(meta_path.read_text())
+    except json.JSONDecodeError:
+        return  # ShardStore names the corrupt file
+    old, new = meta.get("config") or {}, json.loads(json.dumps(dataclasses.asdict(config)))
+    houses = old.get("houses")
+    grows = isinstance(houses, int) and houses < new["houses"]
+    if not grows or {**old, "houses": new["houses"]} != new:
+        return
+    per = config.houses_per_shard
+    kept = [int(k) for k in meta.get("shards", {}) if (int(k) + 1) * per <= houses]
+    ShardStore.open(out_dir).reconfigure(new, kept)
+    print(f"dataset {out_dir}: grows from {houses} to {new['houses']} houses "
+          f"({len(kept)} full shards kept)")  # fmt: skip
 
 
 # jitted once per (preset, config): the whole shard's houses in one program per stage

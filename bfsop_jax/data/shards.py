@@ -126,6 +126,17 @@ class ShardStore:
         self.meta["shards"][str(index)] = {"rows": next(iter(lengths.values())), **(info or {})}
         self._write_meta()
 
+    def reconfigure(self, config: dict[str, Any], keep: Iterable[int]) -> None:
+        """Record a new configuration for this directory, keeping only the shards
+        ``keep`` (the others are forgotten and will be generated again). For a caller
+        that knows those shards are what ``config`` would produce, e.g. a dataset grown
+        to more houses."""
+        keep = {str(i) for i in keep}
+        self.config = json.loads(json.dumps(config))
+        shards = {k: v for k, v in self.meta["shards"].items() if k in keep}
+        self.meta = {**self.meta, "config": self.config, "shards": shards}
+        self._write_meta()
+
     def _copy_shard(self, index: int, src: Path, info: dict[str, Any]) -> None:
         """Copy a complete shard file in atomically, then record it in ``meta.json``."""
 
