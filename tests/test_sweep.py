@@ -135,10 +135,11 @@ def test_sweep_end_to_end_compiles_once_per_group_and_resumes(tmp_path, smoke_da
 
 def test_sweep_data_overrides_reach_the_dataset(tmp_path, smoke_data_dir):
     """``--houses`` / ``--tasks`` select the dataset as in ``experiments.distill``: the
-    smoke cache (2 houses) is refused for a 3-house configuration, before any training."""
+    smoke cache (6 tasks per house) is refused for a 5-task configuration, before any
+    training and without touching the cache (a larger ``--houses`` alone would grow it)."""
     from experiments import sweep
 
     argv = ["--preset", "smoke", "--grid", "lr=1e-3", "--out", str(tmp_path / "s"),
-            "--data-dir", str(smoke_data_dir), "--houses", "3", "--no-progress"]  # fmt: skip
+            "--data-dir", str(smoke_data_dir), "--tasks", "5", "--no-progress"]  # fmt: skip
     with pytest.raises(ValueError, match="another configuration"):
         sweep.main(argv)
