@@ -17,7 +17,7 @@ from bfsop_jax.model import ModelConfig, StrategicTransformer
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.sop import evaluate, solve_vns
 from bfsop_jax.sop.io import random_instance
-from bfsop_jax.viz import plot_distance_mass
+from bfsop_jax.viz import plot_distance_mass, plot_model_comparison
 
 
 @pytest.fixture(scope="module")
@@ -87,6 +87,16 @@ def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
     table = solver_eval.compare_table({"a": p, "b": p}, planners)
     assert table.count("| a | transformer") == 2 and table.count("| b | transformer") == 2
     assert f"{row['reward_ratio']:.3f} | {d:+.3f} [{lo:+.3f}, {hi:+.3f}]" in table
+    fig = plot_model_comparison({"a": p, "b": p}, tmp_path / "compare.png", latency_budget_ms=5.0)
+    ax = fig.axes[0]
+    drawn = [line for line in ax.get_lines() if line.get_label() in ("a", "b")]
+    n_shown = len([k for k in p if k not in ("vns", "greedy_insertion")])
+    assert [len(line.get_xdata()) for line in drawn] == [n_shown, n_shown]
+    np.testing.assert_allclose(  # ratios to the VNS, in order of latency
+        sorted(zip(drawn[0].get_xdata(), drawn[0].get_ydata(), strict=True))[0][1],
+        min((r["latency_ms_single"], r["reward_ratio"]) for k, r in p.items()
+            if k not in ("vns", "greedy_insertion"))[1], rtol=1e-6)  # fmt: skip
+    assert (tmp_path / "compare.png").stat().st_size > 0
 
 
 def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
@@ -150,6 +160,7 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     assert ev3["compare"]["demo"]["vns"] == ev3["planners"]["vns"]  # one teacher run
     assert set(ev3["compare"]["demo"]) >= set(distill.COMPARE_PLANNERS)
     assert "| demo | transformer+2opt |" in (other / "tables.md").read_text()
+    assert (other / "compare.png").stat().st_size > 0  # reward against latency, both models
 
     # DAgger: one round in which the trained student drives and the teacher labels
     dagger = ["--preset", "smoke", "--stage", "dagger", "--out", str(run), "--data-dir",

@@ -254,12 +254,18 @@ def test_fill_option_adds_reward_within_budget(policy):
         assert float(filled.reward[i]) >= float(plain.reward[i]) - 1e-5
 
 
-def test_shipped_demo_policy_plans_map_instances():
-    """``StrategicPolicy.load()`` with no argument: the pretrained demo model in the package
-    plans navigation-sized instances (N = 76, K = 16) feasibly and beats an empty plan."""
-    shipped = StrategicPolicy.load()
+@pytest.mark.parametrize("name", ["demo", "paper"])
+def test_shipped_policies_plan_map_instances(name):
+    """The pretrained models in the package (``StrategicPolicy.load()`` with no argument is
+    the demo one; ``load("paper")`` the paper-size one) plan navigation-sized instances
+    (N = 76, K = 16) feasibly and beat an empty plan."""
+    shipped = StrategicPolicy.load(name)
     assert (shipped.num_nodes, shipped.num_sets) == (76, 16)
-    assert StrategicPolicy.load("demo").config == shipped.config  # the same model by name
+    if name == "demo":
+        assert StrategicPolicy.load().config == shipped.config  # the default model
+    else:  # the paper model: 6 encoder layers, 8 heads, d = 128, ff 512
+        m = shipped.config
+        assert (m.n_layers, m.n_heads, m.d_model, m.d_ff) == (6, 8, 128, 512)
     insts = [random_instance(s, num_sets=15, viewpoints=5, masked_sets=s % 3) for s in range(4)]
     sol = shipped.plan(stack(insts))
     for i, inst in enumerate(insts):

@@ -4,14 +4,20 @@
 * :mod:`~bfsop_jax.viz.trajectories`: executed trajectories, alone or side by side;
 * :mod:`~bfsop_jax.viz.tours`: SOP tours of several planners, the decoder's distance mass;
 * :mod:`~bfsop_jax.viz.training`: the training curve, DAgger rounds;
-* :mod:`~bfsop_jax.viz.evaluation`: PPL per method and per category, the sweep chart.
+* :mod:`~bfsop_jax.viz.evaluation`: PPL per method and per category, the sweep chart,
+  models side by side (reward against latency).
 
 Each ``plot_*`` function draws one picture of one thing and saves it as a PNG when given a
 path (written atomically). The package imports no training or evaluation code (those
 import it), and draws with the Agg backend, so it works without a display.
 """
 
-from bfsop_jax.viz.evaluation import plot_category_ppl, plot_ppl, plot_sweep
+from bfsop_jax.viz.evaluation import (
+    plot_category_ppl,
+    plot_model_comparison,
+    plot_ppl,
+    plot_sweep,
+)
 from bfsop_jax.viz.tours import plot_distance_mass, plot_tour_comparison
 from bfsop_jax.viz.training import plot_dagger, plot_rl, plot_training_curve
 from bfsop_jax.viz.trajectories import plot_trajectories_side_by_side, plot_trajectory
@@ -24,6 +30,7 @@ __all__ = [
     "plot_rl",
     "plot_distance_mass",
     "plot_house",
+    "plot_model_comparison",
     "plot_ppl",
     "plot_sweep",
     "plot_tour_comparison",

@@ -1,5 +1,6 @@
-"""Evaluation charts: PPL per method, PPL per target category and method, and the
-hyper-parameter sweep (reward / VNS per swept value).
+"""Evaluation charts: PPL per method, PPL per target category and method, the
+hyper-parameter sweep (reward / VNS per swept value) and several planners' reward against
+their latency (models side by side).
 """
 
 from __future__ import annotations
@@ -10,13 +11,14 @@ from typing import TYPE_CHECKING, Any
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import FormatStrFormatter
 
 from bfsop_jax.viz.style import BLUE, RED, finish, method_colour, style_axes
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
-__all__ = ["plot_category_ppl", "plot_ppl", "plot_sweep"]
+__all__ = ["plot_category_ppl", "plot_model_comparison", "plot_ppl", "plot_sweep"]
 
 
 def plot_ppl(
@@ -110,4 +112,60 @@ def plot_sweep(
     style_axes(axes[0][0], ylabel="reward / VNS (greedy + 2-opt)",
                legend={"fontsize": 7, "loc": "best"})  # fmt: skip
     fig.suptitle(f"Sweep: {len(results)} combinations", fontsize=10)
+    return finish(fig, path)
+
+
+# planner names shortened for the point labels of :func:`plot_model_comparison`
+_SHORT = (("transformer+2opt", "greedy"), ("+best_of_", "+best"), ("multi_start", "multi"))
+
+
+def plot_model_comparison(
+    models: Mapping[str, Mapping[str, Mapping[str, Any]]],
+    path: str | Path | None = None,
+    title: str | None = None,
+    goals: Sequence[float] = (0.95, 0.985),
+    latency_budget_ms: float = 10.0,
+) -> plt.Figure:
+    """Reward / VNS against single-instance latency (ms, log scale) of every planner of
+    every model on the same instances: one colour per model, each planner a labelled
+    point; greedy insertion as a black star; dotted lines at the reward
+    ``goals`` and at ``latency_budget_ms``.
+
+    Args: models: model label -> planner name -> a summary row with ``mean_reward`` and
+    ``latency_ms_single`` (the ``planners`` of an evaluation summary); each model's ``vns``
+    row is the reward's reference.
+    """
+    fig, ax = plt.subplots(figsize=(7.6, 4.4), dpi=110)
+    insertion = None
+    skip = ("vns", "greedy_insertion")
+    for i, (label, planners) in enumerate(models.items()):
+        scale = max(planners["vns"]["mean_reward"], 1e-12)
+        rows = sorted(
+            (r["latency_ms_single"], r["mean_reward"] / scale, name)
+            for name, r in planners.items()
+            if name not in skip
+        )
+        x, y = [r[0] for r in rows], [r[1] for r in rows]
+        colour = method_colour(i + 1)
+        ax.plot(x, y, color=colour, marker="o", ms=6, ls="none", mec="black", mew=0.4, label=label)
+        for xi, yi, name in rows:
+            for old, new in _SHORT:
+                name = name.replace(old, new)
+            ax.annotate(name, (xi, yi), xytext=(4, -3 - 4 * i), textcoords="offset points",
+                        fontsize=6, color=colour)  # fmt: skip
+        if insertion is None and "greedy_insertion" in planners:
+            g = planners["greedy_insertion"]
+            insertion = (g["latency_ms_single"], g["mean_reward"] / scale)
+    if insertion is not None:
+        ax.plot(*insertion, marker="*", ms=11, color="black", ls="none", label="greedy insertion")
+    for goal in goals:
+        ax.axhline(goal, color="grey", ls=":", lw=1)
+    ax.axvline(latency_budget_ms, color="grey", ls=":", lw=1)
+    ax.set_xscale("log")
+    ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(FormatStrFormatter("%g"))
+    ax.tick_params(axis="x", which="minor", labelsize=7)
+    style_axes(ax, xlabel="latency per instance, single (ms, log scale)",
+               ylabel="reward / VNS", title=title, title_size=10, grid="both",
+               legend={"fontsize": 7, "loc": "lower right"})  # fmt: skip
     return finish(fig, path)
