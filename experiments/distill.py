@@ -433,12 +433,8 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     if args.compare:
         text += solver_eval.compare_table(result["compare"], COMPARE_PLANNERS)
         files.write_text(out / "tables.md", text)
-        shown = {"vns", "greedy_insertion", *COMPARE_PLANNERS}  # the same planners for every model
-        plot_model_comparison(
-            {m: {k: v for k, v in p.items() if k in shown} for m, p in result["compare"].items()},
-            out / "compare.png",
-            title=f"{args.preset}: {n} held-out instances of houses {lo}..{hi - 1}",
-        )
+        title = f"{args.preset}: {n} held-out instances of houses {lo}..{hi - 1}"
+        plot_model_comparison(result["compare"], out / "compare.png", COMPARE_PLANNERS, title)
     print(text)
     if preset.nav_houses > 0 and not args.no_navigation:
         result["navigation"] = stage_navigation(args, preset, out, policy, checkpoint)
@@ -562,10 +558,8 @@ def stage_rl(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> 
     rl_dir = out / "rl"
     print(f"reward fine-tuning {base} ({rl.epochs} epochs) -> {rl_dir}")
     rows = finetune_rl(base, train_ds, val_ds, rl_dir, rl, progress=not args.no_progress)
-    head = (
-        "| epoch | validation greedy / teacher | training sampled / teacher | "
-        "teacher cross-entropy | seconds | selected |"
-    )
+    head = ("| epoch | validation greedy / teacher | training sampled / teacher | "
+            "teacher cross-entropy | seconds | selected |")
     lines = [head, "|---|---|---|---|---|---|"]
     for r in rows:
         sample = f"{r['train_sample_ratio']:.3f}" if "train_sample_ratio" in r else "-"

@@ -5,7 +5,7 @@ their latency (models side by side).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -122,6 +122,7 @@ _SHORT = (("transformer+2opt", "greedy"), ("+best_of_", "+best"), ("multi_start"
 def plot_model_comparison(
     models: Mapping[str, Mapping[str, Mapping[str, Any]]],
     path: str | Path | None = None,
+    planners: Iterable[str] | None = None,
     title: str | None = None,
     goals: Sequence[float] = (0.95, 0.985),
     latency_budget_ms: float = 10.0,
@@ -133,17 +134,20 @@ def plot_model_comparison(
 
     Args: models: model label -> planner name -> a summary row with ``mean_reward`` and
     ``latency_ms_single`` (the ``planners`` of an evaluation summary); each model's ``vns``
-    row is the reward's reference.
+    row is the reward's reference; planners: the planner names drawn, as in
+    :func:`bfsop_jax.eval.solvers.compare_table` (default: every one but ``vns`` and
+    ``greedy_insertion``).
     """
     fig, ax = plt.subplots(figsize=(7.6, 4.4), dpi=110)
     insertion = None
     skip = ("vns", "greedy_insertion")
+    shown = None if planners is None else set(planners)
     for i, (label, planners) in enumerate(models.items()):
         scale = max(planners["vns"]["mean_reward"], 1e-12)
         rows = sorted(
             (r["latency_ms_single"], r["mean_reward"] / scale, name)
             for name, r in planners.items()
-            if name not in skip
+            if name not in skip and (shown is None or name in shown)
         )
         x, y = [r[0] for r in rows], [r[1] for r in rows]
         colour = method_colour(i + 1)
