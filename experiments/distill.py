@@ -46,6 +46,7 @@ from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import DataConfig, generate_dataset, pose_tasks
 from bfsop_jax.data.shards import merge_datasets
 from bfsop_jax.eval import solvers as solver_eval
+from bfsop_jax.model import DECODERS
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training import RunConfig, train
 from bfsop_jax.training.bc import evaluate_imitation
@@ -184,6 +185,11 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         "--model", default=None, choices=sorted(MODEL_PRESETS),
         help="override: model size preset and its training recipe (default: the preset's; "
         "demo d=64 x 3 layers, paper d=128 x 6 layers)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--decoder", default=None, choices=list(DECODERS),
+        help="override: how a chosen node enters the plan: append (the paper's pointer "
+        "decoding, default) or insertion (where it adds the least cost)",
     )  # fmt: skip
     ap.add_argument(
         "--lr", type=float, default=None,
@@ -348,10 +354,10 @@ def stage_data(args, preset: DistillPreset, data_dir: Path):
 def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> dict[str, Any]:
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
     meta = {"data_dir": str(store.root), "data_config": dataclasses.asdict(cfg)}
-    runs = {"main": (out, {})}
+    runs = {"main": (out, {"decoder": args.decoder} if args.decoder else {})}
     if args.ablations:
         for name, kw in ABLATIONS.items():
-            runs[name] = (out / "ablations" / name, kw)
+            runs[name] = (out / "ablations" / name, {**runs["main"][1], **kw})
     summary = {}
     for name, (run_dir, kw) in runs.items():
         config = _run_config(preset, cfg, args.epochs, args.model, **kw)

@@ -191,6 +191,29 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     assert StrategicPolicy.load(run / "rl").num_sets == StrategicPolicy.load(run).num_sets
 
 
+def test_distill_trains_the_insertion_decoder(tmp_path, smoke_data_dir):
+    """``--decoder insertion`` trains the insertion decoder (recorded in config.json), its
+    policy plans feasible plans, and reward fine-tuning refuses it by name."""
+    from experiments import distill
+
+    run = tmp_path / "ins"
+    distill.main(["--preset", "smoke", "--stage", "train", "--out", str(run), "--data-dir",
+                  str(smoke_data_dir), "--epochs", "1", "--decoder", "insertion",
+                  "--no-progress"])  # fmt: skip
+    config = json.loads((run / "config.json").read_text())
+    assert config["run"]["model"]["decoder"] == "insertion"
+    policy = StrategicPolicy.load(run)
+    assert policy.model.config.decoder == "insertion"
+    inst = random_instance(3, num_sets=4, viewpoints=2)
+    sol = policy.plan(inst)
+    assert evaluate(inst, np.asarray(sol.nodes))[2]
+    with pytest.raises(ValueError, match="append decoder"):
+        distill.main(["--preset", "smoke", "--stage", "rl", "--out", str(run), "--data-dir",
+                      str(smoke_data_dir), "--rl-epochs", "1", "--no-progress"])  # fmt: skip
+    with pytest.raises(SystemExit):
+        distill.main(["--preset", "smoke", "--stage", "train", "--decoder", "prepend"])
+
+
 def test_distill_rejects_bad_arguments(tmp_path, capsys):
     from experiments import distill
 

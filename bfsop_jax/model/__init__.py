@@ -19,9 +19,10 @@ from bfsop_jax.model.features import (
     step_features,
     symmetric_features,
 )
-from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
+from bfsop_jax.model.transformer import DECODERS, ModelConfig, StrategicTransformer
 
 __all__ = [
+    "DECODERS",
     "DecodeTrace",
     "ModelConfig",
     "NodeFeatures",

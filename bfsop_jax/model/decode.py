@@ -23,6 +23,7 @@ from flax import struct
 
 from bfsop_jax.model.features import (
     NodeFeatures,
+    insertion_step_features,
     node_features,
     normalised_budget,
     step_features,
@@ -33,10 +34,12 @@ from bfsop_jax.sop.rules import (
     allowed_next,
     blocked_sets,
     close_plan,
+    insertion_mask,
     next_mask,
     plan_value,
     prefix_states,
 )
+from bfsop_jax.sop.two_opt import insertion_costs, plan_route
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 
 __all__ = [
@@ -59,6 +62,9 @@ class TeacherForcing:
     target: Any  # [B, S] int32: the teacher's next node, N for END
     valid: Any  # [B, S] bool: the step exists (the prefix ends at a real node)
     allowed: Any = None  # [B, S, N+1] bool: the entries the decoder could choose at a step
+    # [B, S, N+1] bool, insertion decoder: every entry that is right (any teacher node not
+    # in the plan yet, END once all are); None: only ``target`` is
+    targets: Any = None
 
 
 @struct.dataclass
@@ -79,6 +85,7 @@ def teacher_forced_logits(
     instance: SOPInstance,
     teacher_nodes: jax.Array,
     features: NodeFeatures | None = None,
+    order_key: jax.Array | None = None,
 ) -> TeacherForcing:
     """Decoder log-probabilities on every prefix of the teacher's plans, in parallel.
 
@@ -93,6 +100,14 @@ def teacher_forced_logits(
         instance: batch of B instances (N nodes, K sets).
         teacher_nodes: [B, T] int32, T = K + 1: start first, then visited nodes, -1 padding.
         features: precomputed :func:`node_features` (e.g. a coordinate symmetry).
+        order_key: insertion decoder only: the PRNG key of the random order in which the
+            teacher's nodes enter the plan (default ``key(0)``, fixed, e.g. for validation).
+
+    With the insertion decoder (``model.config.decoder == "insertion"``) the states are
+    not the teacher's prefixes: the teacher's visited nodes enter the plan in a random
+    order, each state's plan is the nodes in so far in the teacher's order, and every
+    teacher node not yet in is a right answer (``TeacherForcing.targets``; END once all
+    are in).
     """
     b, t = teacher_nodes.shape
     n, k = instance.set_id.shape[-1], instance.set_reward.shape[-1]
@@ -100,6 +115,9 @@ def teacher_forced_logits(
         raise ValueError(f"teacher_nodes must have T = K + 1 = {plan_length(k)} slots, got {t}")
     features = _features(instance, features)
     cache = model.prepare(features, instance.start)
+    if model.config.decoder == "insertion":
+        key = jax.random.key(0) if order_key is None else order_key
+        return _insertion_teacher_forcing(model, instance, teacher_nodes, features, cache, key)
 
     safe_last, valid, visited, travelled = prefix_states(instance, teacher_nodes)  # [B, S]
     nxt = teacher_nodes[:, 1:]
@@ -119,6 +137,84 @@ def teacher_forced_logits(
     scores = model.decoder(cache, safe_last, allowed, budget_left, step)
     return TeacherForcing(
         log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=valid, allowed=allowed
+    )
+
+
+def _budget_left(model, instance, travelled, cost_scale):
+    if not model.config.budget_aware:
+        return None
+    return normalised_budget(instance.budget[:, None] - travelled, cost_scale[:, None])
+
+
+def _insertion_teacher_forcing(
+    model: StrategicTransformer,
+    instance: SOPInstance,
+    teacher_nodes: jax.Array,
+    features: NodeFeatures,
+    cache: DecoderCache,
+    key: jax.Array,
+) -> TeacherForcing:
+    """Teacher forcing of the insertion decoder (see :func:`teacher_forced_logits`)."""
+    b, t = teacher_nodes.shape
+    n, k = instance.set_id.shape[-1], instance.set_reward.shape[-1]
+    teacher_nodes = jnp.asarray(teacher_nodes)
+    pos = jnp.arange(t)
+    end = instance.end
+    has_end = end >= 0
+    is_end = has_end[:, None] & (teacher_nodes == end[:, None]) & (pos > 0)
+    visit = (teacher_nodes >= 0) & (pos > 0) & ~is_end  # [B, T] the teacher's set visits
+    m_full = jnp.sum(visit, axis=-1)  # [B]
+    # random order of entry: visits get ranks 0..m-1, the rest come after
+    u = jnp.where(visit, jax.random.uniform(key, (b, t)), 2.0 + pos)
+    rank = jnp.argsort(jnp.argsort(u, axis=-1), axis=-1)
+    s = jnp.arange(t - 1)[None, :, None]  # state s: the first s nodes of the order are in
+    included = (pos == 0) | (visit[:, None] & (rank[:, None] < s))  # [B, S, T]
+    count = jnp.sum(included, axis=-1)  # [B, S] start + min(s, m) nodes
+    idx = jnp.argsort(jnp.where(included, pos, t + pos), axis=-1)  # in-plan nodes first
+    ordered = jnp.take_along_axis(jnp.broadcast_to(teacher_nodes[:, None], idx.shape), idx, -1)
+    tail = jnp.where(has_end, end, n)[:, None, None]
+    slot = jnp.arange(t + 1)
+    ordered = jnp.pad(ordered, ((0, 0), (0, 0), (0, 1)), constant_values=n)
+    route = jnp.where(
+        slot < count[..., None], ordered, jnp.where(slot == count[..., None], tail, n)
+    ).astype(jnp.int32)  # [B, S, T+1]
+    m = count - 1
+    delta, _, travelled = jax.vmap(jax.vmap(insertion_costs, in_axes=(None, 0, 0)))(
+        instance, route, m
+    )
+
+    node_sets = jnp.take_along_axis(instance.set_id, jnp.clip(teacher_nodes, 0), axis=-1)
+    sets_in = included[..., None] & (node_sets[:, None, :, None] == jnp.arange(k))
+    visited = blocked_sets(instance)[:, None] | jnp.any(sets_in, axis=2)  # [B, S, K]
+    last_pos = jnp.argmax(visit[:, None] & (rank[:, None] == s - 1), axis=-1)  # [B, S]
+    last = jnp.where(
+        s[..., 0] == 0,
+        instance.start[:, None],
+        jnp.take_along_axis(teacher_nodes, last_pos, axis=1),
+    )
+    next_pos = jnp.argmax(visit[:, None] & (rank[:, None] == s), axis=-1)
+    at_end = s[..., 0] >= m_full[:, None]  # [B, S] every teacher node is in
+    target = jnp.where(at_end, n, jnp.take_along_axis(teacher_nodes, next_pos, axis=1)).astype(
+        jnp.int32
+    )
+    remaining = visit[:, None] & (rank[:, None] >= s)  # [B, S, T]
+    hits = remaining[..., None] & (teacher_nodes[:, None, :, None] == jnp.arange(n))
+    targets = jnp.concatenate([jnp.any(hits, axis=2), at_end[..., None]], axis=-1)
+    valid = s[..., 0] <= m_full[:, None]
+
+    allowed = insertion_mask(instance, visited, delta, travelled, model.config.budget_mask)
+    allowed = allowed | targets
+    step = None
+    if model.config.step_features:
+        step = insertion_step_features(instance, features, delta, travelled)
+    budget_left = _budget_left(model, instance, travelled, features.cost_scale)
+    scores = model.decoder(cache, last.astype(jnp.int32), allowed, budget_left, step)
+    return TeacherForcing(
+        log_probs=jax.nn.log_softmax(scores, axis=-1),
+        target=target,
+        valid=valid,
+        allowed=allowed,
+        targets=targets & valid[..., None],
     )
 
 
@@ -165,11 +261,31 @@ def decode(
         key = jax.random.key(0)  # unused by greedy rows; keeps one code path
     keys = jax.random.split(key, steps)
     if first_set is None:
-        first_only = jnp.ones((b, n + 1), bool)
+        first_only = None
     else:  # the first move's extra mask: nodes of the row's set (END too, see below)
         first_set = jnp.broadcast_to(jnp.asarray(first_set, jnp.int32), (b,))
         in_set = (instance.set_id == first_set[:, None]) & (first_set[:, None] >= 0)
         first_only = jnp.concatenate([in_set, jnp.zeros((b, 1), bool)], axis=-1)
+
+    def restrict_first(allowed, index):
+        """[B, N+1] mask of a step; the first move goes into ``first_set`` where it can."""
+        if first_only is None:
+            return allowed
+        forced = allowed & first_only
+        use = (index == 0) & jnp.any(forced, axis=-1, keepdims=True)
+        return jnp.where(use, forced, allowed)
+
+    def choose(scores, step_key, done):
+        sampled = jax.random.categorical(step_key, scores / temperature, axis=-1)
+        choice = jnp.where(greedy, jnp.argmax(scores, axis=-1), sampled)
+        stop = done | (choice == n)
+        probs = jnp.where(done[:, None], 0.0, jax.nn.softmax(scores, axis=-1))
+        return jnp.where(stop, -1, choice).astype(jnp.int32), stop, probs
+
+    if model.config.decoder == "insertion":
+        return _decode_insertion(
+            model, instance, features, cache, keys, restrict_first, choose, steps
+        )
 
     def step(carry, inputs):
         step_key, index = inputs
@@ -177,10 +293,7 @@ def decode(
         allowed = next_mask(  # [B, 1, N+1]
             instance, visited[:, None], last[:, None], travelled[:, None], model.config.budget_mask
         )
-        if first_set is not None:  # restrict the first move where the set has a choice
-            forced = allowed[:, 0] & first_only
-            use = (index == 0) & jnp.any(forced, axis=-1, keepdims=True)
-            allowed = jnp.where(use, forced, allowed[:, 0])[:, None]
+        allowed = restrict_first(allowed[:, 0], index)[:, None]
         budget_left = None
         if model.config.budget_aware:
             budget_left = normalised_budget(instance.budget - travelled, cache.cost_scale)
@@ -189,12 +302,8 @@ def decode(
         if uses_step:
             step_in = step_features(instance, features, last[:, None], travelled[:, None])
         scores = model.decoder(cache, last[:, None], allowed, budget_left, step_in)[:, 0]
-        sampled = jax.random.categorical(step_key, scores / temperature, axis=-1)
-        choice = jnp.where(greedy, jnp.argmax(scores, axis=-1), sampled)
-        stop = done | (choice == n)
-        node = jnp.where(stop, -1, choice).astype(jnp.int32)
+        node, stop, probs = choose(scores, step_key, done)
         new_last, visited, travelled = advance(instance, last, visited, travelled, node, stop)
-        probs = jnp.where(done[:, None], 0.0, jax.nn.softmax(scores, axis=-1))
         return (new_last, visited, stop, travelled), (node, probs, allowed[:, 0])
 
     carry0 = (
@@ -206,6 +315,55 @@ def decode(
     _, (chosen, probs, allowed) = jax.lax.scan(step, carry0, (keys, jnp.arange(steps)))
     nodes = jnp.concatenate([instance.start[:, None], chosen.T], axis=1).astype(jnp.int32)
     nodes = close_plan(instance, nodes)  # a closed tour or fixed goal ends at its end node
+    reward, cost = plan_value(instance, nodes)
+    return DecodeTrace(
+        solution=Solution(nodes=nodes, reward=reward, cost=cost),
+        probs=jnp.swapaxes(probs, 0, 1),
+        allowed=jnp.swapaxes(allowed, 0, 1),
+    )
+
+
+def _decode_insertion(model, instance, features, cache, keys, restrict_first, choose, steps):
+    """:func:`decode` for the insertion decoder: each chosen node goes into the plan where
+    it adds the least cost (``bfsop_jax.sop.two_opt.insertion_costs``)."""
+    b, n = instance.set_id.shape
+    t = steps + 1
+    slot = jnp.arange(t + 1)
+    empty = jnp.full((b, t), -1, jnp.int32).at[:, 0].set(instance.start)
+    route0, m0 = jax.vmap(plan_route)(instance, empty)  # start (and a closed tour's end)
+
+    def step(carry, inputs):
+        step_key, index = inputs
+        route, m, visited, done, last = carry
+        delta, after, travelled = jax.vmap(insertion_costs)(instance, route, m)  # [B, N]
+        allowed = insertion_mask(
+            instance, visited[:, None], delta[:, None], travelled[:, None],
+            model.config.budget_mask,
+        )  # fmt: skip
+        allowed = restrict_first(allowed[:, 0], index)
+        step_in = None
+        if model.config.step_features:
+            step_in = insertion_step_features(
+                instance, features, delta[:, None], travelled[:, None]
+            )
+        budget_left = _budget_left(model, instance, travelled[:, None], cache.cost_scale)
+        scores = model.decoder(cache, last[:, None], allowed[:, None], budget_left, step_in)
+        node, stop, probs = choose(scores[:, 0], step_key, done)
+        j = jnp.clip(node, 0)
+        p = jnp.take_along_axis(after, j[:, None], axis=1)
+        shifted = jnp.where(
+            slot <= p, route, jnp.where(slot == p + 1, j[:, None], jnp.roll(route, 1, axis=-1))
+        )
+        route = jnp.where(stop[:, None], route, shifted).astype(jnp.int32)
+        sets = jnp.take_along_axis(jnp.asarray(instance.set_id), j[:, None], axis=1)[:, 0]
+        visited = visited | (jax.nn.one_hot(sets, visited.shape[-1], dtype=bool) & ~stop[:, None])
+        carry = (route, m + (~stop), visited, stop, jnp.where(stop, last, j))
+        return carry, (node, probs, allowed)
+
+    carry0 = (route0, m0, blocked_sets(instance), jnp.zeros((b,), bool), instance.start)
+    (route, m, _, _, _), (_, probs, allowed) = jax.lax.scan(step, carry0, (keys, jnp.arange(steps)))
+    keep = (slot[:t] <= m[:, None]) | ((slot[:t] == m[:, None] + 1) & (route[:, :t] < n))
+    nodes = jnp.where(keep, route[:, :t], -1).astype(jnp.int32)
     reward, cost = plan_value(instance, nodes)
     return DecodeTrace(
         solution=Solution(nodes=nodes, reward=reward, cost=cost),

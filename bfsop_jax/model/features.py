@@ -36,6 +36,7 @@ __all__ = [
     "NodeFeatures",
     "node_features",
     "normalised_budget",
+    "insertion_step_features",
     "random_symmetry",
     "step_features",
     "symmetric_features",
@@ -132,11 +133,43 @@ def step_features(
     """
     scale = features.cost_scale[:, None, None]  # [B, 1, 1]
     cost = jnp.take_along_axis(instance.cost, last[..., None], axis=1)  # [B, S, N]
-    d = jnp.where(jnp.isfinite(cost), jnp.minimum(cost / scale, FAR), FAR)
     end = jnp.clip(instance.end, 0)
     to_end = jax.vmap(lambda c, e: c[:, e])(instance.cost, end)  # [B, N]
     to_end = jnp.where(jnp.isfinite(to_end), jnp.minimum(to_end / scale[:, 0], FAR), FAR)
-    e = jnp.broadcast_to(jnp.where(instance.end[:, None] >= 0, to_end, 0.0)[:, None], d.shape)
+    e = jnp.where(instance.end[:, None] >= 0, to_end, 0.0)[:, None]
+    return _move_features(instance, features, cost, e, travelled)
+
+
+def insertion_step_features(
+    instance: SOPInstance, features: NodeFeatures, delta: jax.Array, travelled: jax.Array
+) -> jax.Array:
+    """:func:`step_features` of an insertion decoder's states (batched, pure).
+
+    The move is the cheapest insertion of ``j`` into the plan so far, so feature 0 is its
+    added cost ``delta_j / s`` and feature 1 (``e``) is 0: the plan's cost ``t`` already
+    includes the way to a closed tour's end node.
+
+    Args:
+        instance: batch of B instances (N nodes).
+        features: their :func:`node_features`.
+        delta: [B, S, N] float32 added cost of each node's cheapest insertion (cost units,
+            inf where it has none).
+        travelled: [B, S] float32 cost of each state's plan (cost units).
+
+    Returns:
+        [B, S, N, NUM_STEP_FEATURES] float32 (zeros for padding nodes).
+    """
+    return _move_features(instance, features, delta, jnp.zeros((1, 1, 1), jnp.float32), travelled)
+
+
+def _move_features(
+    instance: SOPInstance, features: NodeFeatures, move: jax.Array, e: jax.Array, travelled
+) -> jax.Array:
+    """The 7 step features from the move costs [B, S, N] (cost units) and ``e`` (normalised,
+    broadcast to [B, S, N])."""
+    scale = features.cost_scale[:, None, None]  # [B, 1, 1]
+    d = jnp.where(jnp.isfinite(move), jnp.clip(move / scale, 0.0, FAR), FAR)
+    e = jnp.broadcast_to(e, d.shape)
     left = normalised_budget(instance.budget[:, None] - travelled, scale[..., 0])
     left = jnp.broadcast_to(left[..., None], d.shape)
     slack = jnp.clip(left - d - e, -1.0, BUDGET_CLIP)

@@ -36,12 +36,15 @@ from flax import nnx, struct
 from bfsop_jax.model.features import NUM_FEATURES, NUM_STEP_FEATURES, NodeFeatures
 
 __all__ = [
+    "DECODERS",
     "DecoderCache",
     "ModelConfig",
     "PointerDecoder",
     "StrategicTransformer",
     "config_from_dict",
 ]
+
+DECODERS = ("append", "insertion")  # how a chosen node enters the plan (ModelConfig.decoder)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +65,9 @@ class ModelConfig:
     bias_scale_init: float = 1.0  # initial per-head scale of the geometric bias
     step_features: bool = False  # score candidates by their step features too (an MLP)
     step_hidden: int = 64  # hidden width of that MLP
+    # "append": each step appends a node to the path (the paper's pointer decoding);
+    # "insertion": each step puts the chosen node where it adds the least cost
+    decoder: str = "append"
 
     def __post_init__(self) -> None:
         for name in ("d_model", "n_layers", "n_heads", "d_ff", "step_hidden"):
@@ -72,6 +78,10 @@ class ModelConfig:
             raise ValueError(
                 f"ModelConfig.d_model ({self.d_model}) must be divisible by n_heads "
                 f"({self.n_heads})"
+            )
+        if self.decoder not in DECODERS:
+            raise ValueError(
+                f"ModelConfig.decoder must be one of {', '.join(DECODERS)}, got {self.decoder!r}"
             )
         if not self.clip > 0:
             raise ValueError(f"ModelConfig.clip must be positive, got {self.clip}")

@@ -36,6 +36,7 @@ __all__ = [
     "blocked_sets",
     "close_plan",
     "fits_budget",
+    "insertion_mask",
     "next_mask",
     "open_nodes",
     "plan_end",
@@ -261,3 +262,38 @@ def plan_value(instance: SOPInstance, nodes: jax.Array) -> tuple[jax.Array, jax.
     edge = jax.vmap(lambda c, a, b: c[a, b])(instance.cost, safe[:, :-1], safe[:, 1:])
     cost = jnp.sum(jnp.where(valid[:, :-1] & valid[:, 1:], edge, 0.0), axis=1)
     return plan_reward(instance, nodes), cost.astype(jnp.float32)
+
+
+def insertion_mask(
+    instance: SOPInstance,
+    visited_sets: jax.Array,
+    delta: jax.Array,
+    travelled: jax.Array,
+    budget_mask: bool,
+) -> jax.Array:
+    """The mask of an insertion step (the chosen node goes where it adds the least cost).
+
+    A node may be inserted when it is open (:func:`open_nodes`) and has a reachable
+    position (finite ``delta``); with ``budget_mask`` also only if the plan stays within
+    the budget (up to a relative 1e-5) and END is allowed only when no node is.
+
+    Args:
+        instance: batch of B instances.
+        visited_sets: [B, S, K] bool, sets already used (blocked sets included).
+        delta: [B, S, N] float32 added cost of each node's cheapest insertion.
+        travelled: [B, S] float32 cost of each state's plan (to the end node of a closed
+            tour).
+        budget_mask: apply the budget rule (static Python bool).
+
+    Returns:
+        [B, S, N+1] bool, END at index N.
+    """
+    set_id = jnp.broadcast_to(instance.set_id[:, None], delta.shape)
+    nodes = open_nodes(set_id, visited_sets) & jnp.isfinite(delta)
+    end_ok = jnp.ones(delta.shape[:-1] + (1,), bool)
+    if budget_mask:
+        tol = 1e-5 * jnp.maximum(1.0, instance.budget)[:, None, None]
+        left = instance.budget[:, None, None] - travelled[..., None]
+        nodes = nodes & (delta <= left + tol)
+        end_ok = ~jnp.any(nodes, axis=-1, keepdims=True)
+    return jnp.concatenate([nodes, end_ok], axis=-1)

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 from bfsop_jax.sop.rules import blocked_sets, open_nodes, plan_end, plan_reward
 from bfsop_jax.sop.types import Solution, SOPInstance
 
-__all__ = ["two_opt", "budget_gate", "insertion_fill"]
+__all__ = ["two_opt", "budget_gate", "insertion_costs", "insertion_fill", "plan_route"]
 
 
 def _batched(fn):
@@ -224,6 +224,58 @@ def budget_gate(instance: SOPInstance, solution: Solution) -> Solution:
     return _batched(_budget_gate_single)(instance, solution)
 
 
+def _insertion_deltas(cx: jax.Array, route: jax.Array, m: jax.Array) -> jax.Array:
+    """[T+1, N] added cost of putting node j right after ``route[p]`` (p <= m), inf elsewhere.
+
+    ``cx`` from :func:`_extended_cost`: after the last visited node comes the end node, or
+    the free virtual node of an open path, so appending to an open path costs c(last, j).
+    """
+    t1 = route.shape[0]
+    n = cx.shape[0] - 1
+    pos = jnp.arange(t1)
+    nxt = route[jnp.clip(pos + 1, 0, t1 - 1)]
+    here = cx[route, nxt]
+    delta = cx[route][:, :n] + cx[:n, nxt].T - here[:, None]
+    ok = (pos <= m)[:, None] & jnp.isfinite(here)[:, None] & ~jnp.isnan(delta)
+    return jnp.where(ok, delta, jnp.inf)
+
+
+def plan_route(instance: SOPInstance, nodes: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """One plan as a route for insertion (single instance).
+
+    Args:
+        instance: one instance (N nodes).
+        nodes: [T] plan (start, visited nodes, the end node of a closed tour), -1 padding.
+
+    Returns:
+        ``(route, m)``: route [T+1] int32 = start, the m visited nodes, the end node (or the
+        virtual node N of an open path), then N; m the visited count.
+    """
+    return _route(instance, nodes)
+
+
+def insertion_costs(
+    instance: SOPInstance, route: jax.Array, m: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Cheapest insertion of every node into one route (single instance, cost units).
+
+    Args:
+        instance: one instance (N nodes).
+        route: [T+1] int32 from :func:`plan_route` (or the same layout).
+        m: [] int32 visited nodes on the route.
+
+    Returns:
+        ``(delta, after, cost)``: delta [N] float32, the least added cost of putting node j
+        into the route (inf when no position is reachable); after [N] int32, the route
+        position it goes right after; cost [] float32, the route's cost (to the end node of
+        a closed tour). Which nodes may be inserted (sets, budget) is the caller's rule.
+    """
+    cx = _extended_cost(instance)
+    deltas = _insertion_deltas(cx, route, m)
+    after = jnp.argmin(deltas, axis=0).astype(jnp.int32)
+    return jnp.min(deltas, axis=0), after, _route_cost(cx, route)
+
+
 def _insertion_fill_single(instance: SOPInstance, solution: Solution) -> Solution:
     cx = _extended_cost(instance)
     route, m = _route(instance, solution.nodes)
@@ -243,9 +295,8 @@ def _insertion_fill_single(instance: SOPInstance, solution: Solution) -> Solutio
             jnp.zeros((k,), bool).at[jnp.clip(set_id[jnp.clip(route, 0, n - 1)], 0)].max(on_route)
         )
         free = open_nodes(set_id, used | blocked) & (reward > 0)
-        nxt = route[jnp.clip(pos + 1, 0, t1 - 1)]
-        delta = cx[route][:, :n] + cx[:n, nxt].T - cx[route, nxt][:, None]  # [T+1, N]
-        ok = (pos[:, None] <= m) & free[None, :] & (cost + delta <= instance.budget)
+        delta = _insertion_deltas(cx, route, m)  # [T+1, N]
+        ok = free[None, :] & (cost + delta <= instance.budget)
         ok = ok & (m + 2 < t1)  # a slot is left for the end
         score = jnp.where(ok, jnp.maximum(delta, 0.0) / reward[None, :], jnp.inf)
         flat = jnp.argmin(score)

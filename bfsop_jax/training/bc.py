@@ -296,13 +296,16 @@ def _teacher_forcing(
     augment: Any = True,
 ):
     """Teacher-forced decoder outputs on a minibatch; with ``key`` (and ``augment`` true),
-    every instance is seen under a random one of the 8 coordinate symmetries."""
+    every instance is seen under a random one of the 8 coordinate symmetries, and an
+    insertion decoder sees the teacher's nodes enter in a random order drawn from ``key``
+    (without ``key``: a fixed order)."""
     model = nnx.merge(graphdef, params)
     inst = _instances(batch)
-    features = None
+    features = order_key = None
     if key is not None:
+        order_key = jax.random.fold_in(key, 1)
         features = random_symmetry(node_features(inst), key, augment)
-    return teacher_forced_logits(model, inst, batch["teacher_nodes"], features)
+    return teacher_forced_logits(model, inst, batch["teacher_nodes"], features, order_key)
 
 
 def _batch_stats(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array], weight=None):
@@ -382,8 +385,9 @@ def _train_epoch(
     num_batches = num_instances // batch_size
 
     def loss(params, batch, key, hyper: Hyper):
+        # the key also draws an insertion decoder's order of entry, so it is always given
         tf = _teacher_forcing(
-            graphdef, params, batch, key=key if augment else None, augment=hyper.augment
+            graphdef, params, batch, key=key, augment=hyper.augment if augment else False
         )
         stats = imitation_stats(tf)
         total = stats[0]

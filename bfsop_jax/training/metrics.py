@@ -41,13 +41,23 @@ COLUMNS = (
 def imitation_stats(tf: TeacherForcing, weight: jax.Array | None = None) -> jax.Array:
     """[3] float32 sums over valid steps: negative log-likelihood, correct arg-max, steps.
 
+    With ``tf.targets`` (several right entries per step) the likelihood is that of any
+    right entry, and an arg-max is correct when it is one of them.
+
     ``weight``: optional [B] per-instance weight (0 drops a padded instance).
     """
     valid = tf.valid.astype(jnp.float32)
     if weight is not None:
         valid = valid * weight[:, None]
-    log_p = jnp.take_along_axis(tf.log_probs, tf.target[..., None], axis=-1)[..., 0]
-    correct = jnp.argmax(tf.log_probs, axis=-1) == tf.target
+    if tf.targets is None:
+        log_p = jnp.take_along_axis(tf.log_probs, tf.target[..., None], axis=-1)[..., 0]
+        correct = jnp.argmax(tf.log_probs, axis=-1) == tf.target
+    else:  # several right answers (insertion decoder): the probability of any of them
+        hit = tf.targets & valid[..., None].astype(bool)
+        log_p = jax.nn.logsumexp(jnp.where(hit, tf.log_probs, -jnp.inf), axis=-1)
+        log_p = jnp.where(jnp.any(hit, axis=-1), log_p, 0.0)
+        pick = jnp.argmax(tf.log_probs, axis=-1)
+        correct = jnp.take_along_axis(tf.targets, pick[..., None], axis=-1)[..., 0]
     return jnp.stack(
         [
             -jnp.sum(jnp.where(valid > 0, log_p, 0.0) * valid),

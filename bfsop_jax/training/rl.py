@@ -256,6 +256,11 @@ def finetune_rl(
         raise ValueError(f"reward fine-tuning needs a trained run with model/ in {base_run}")
     base_config = ckpt.read_config(base_run)
     model_config = ModelConfig.from_dict(base_config["run"]["model"])
+    if model_config.decoder != "append":
+        raise ValueError(
+            f"reward fine-tuning re-scores plans by teacher forcing, which needs the append "
+            f"decoder; {base_run} has decoder {model_config.decoder!r}"
+        )
     info = dataset_info(train_ds)
     for key in ("num_nodes", "num_sets"):
         if info[key] != int(base_config["dataset"][key]):

@@ -1,0 +1,221 @@
+"""The insertion decoder: feasible maximal plans, nearest insertion by hand-set weights,
+teacher forcing on random orders of entry, the any-of-the-teacher's-nodes loss, training."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from bfsop_jax.model import ModelConfig, StrategicTransformer, decode, teacher_forced_logits
+from bfsop_jax.model.decode import TeacherForcing
+from bfsop_jax.sop import evaluate, solve_vns
+from bfsop_jax.sop.io import random_instance
+from bfsop_jax.training import TrainConfig, dataset_from_instances, instances_from_dataset
+from bfsop_jax.training.bc import init_states, make_evaluate, make_train_epoch
+from bfsop_jax.training.metrics import imitation_stats
+
+INSERT = ModelConfig(
+    d_model=32, n_layers=2, n_heads=2, d_ff=64, budget_mask=True, step_features=True,
+    decoder="insertion",
+)  # fmt: skip
+SETS, VIEWPOINTS = 6, 3  # N = 19 nodes, K = 7 sets, T = 8 plan slots
+
+
+def stack(instances):
+    return jax.tree_util.tree_map(lambda *x: jnp.stack([jnp.asarray(v) for v in x]), *instances)
+
+
+def instances(closed: bool, seeds=range(8)):
+    return [
+        random_instance(s, num_sets=SETS, viewpoints=VIEWPOINTS, masked_sets=s % 3, closed=closed)
+        for s in seeds
+    ]
+
+
+def untrained(config: ModelConfig, seed: int) -> StrategicTransformer:
+    """Random weights everywhere, the zero-initialised layers included."""
+    model = StrategicTransformer(config, rngs=nnx.Rngs(seed))
+    for layer in (model.decoder.project_glimpse, model.decoder.step_out):
+        k = layer.kernel
+        k[...] = jax.random.normal(jax.random.key(seed), k.shape) / np.sqrt(k.shape[0])
+    return model
+
+
+def run(model, inst, key=None, greedy=True):
+    g, p = nnx.split(model, nnx.Param)
+    fn = jax.jit(lambda p, i, k: decode(nnx.merge(g, p), i, k, 1.0, greedy))
+    return fn(p, inst, jax.random.key(0) if key is None else key)
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_insertion_plans_are_feasible_and_maximal(closed):
+    """Greedy and sampled insertion plans start at the start, visit each set once, end at a
+    closed tour's end node, fit the budget without the gate, and stop only when no node
+    fits; the plan's cost is the cost the decoder tracked."""
+    batch = stack(instances(closed))
+    tight = batch.replace(budget=batch.budget * 0.6)
+    model = untrained(INSERT, 1)
+    for seed, greedy in ((0, True), (1, False)):
+        trace = run(model, tight, jax.random.key(seed), greedy)
+        nodes = np.asarray(trace.solution.nodes)
+        allowed = np.asarray(trace.allowed)
+        for i in range(nodes.shape[0]):
+            inst = jax.tree_util.tree_map(lambda x, i=i: np.asarray(x)[i], tight)
+            real = nodes[i][nodes[i] >= 0]
+            assert real[0] == int(inst.start)
+            assert (nodes[i][len(real) :] == -1).all()
+            if closed:
+                assert real[-1] == int(inst.end)
+            visited = real[1 : len(real) - int(closed)]
+            sets = inst.set_id[visited].tolist()
+            assert len(set(sets)) == len(sets) and int(inst.set_id[inst.start]) not in sets
+            reward, cost, feasible = evaluate(inst, nodes[i])
+            assert feasible and cost <= float(inst.budget) + 1e-3
+            np.testing.assert_allclose(float(trace.solution.cost[i]), cost, rtol=1e-5)
+            m = len(real) - 1 - int(closed)
+            for t in range(m + 1):
+                assert allowed[i, t, -1] == (not allowed[i, t, :-1].any())
+        assert ((nodes >= 0).sum(1) > 1 + int(closed)).mean() > 0.5  # most plans visit sets
+
+
+def _nearest_insertion(inst) -> list[int]:
+    """NumPy reference: insert the open node of least added cost, where it adds least,
+    while it fits the budget (one node per set)."""
+    cost = np.asarray(inst.cost, np.float64)
+    set_id = np.asarray(inst.set_id)
+    route = [int(inst.start)]
+    closed = int(inst.end) >= 0
+    if closed:
+        route.append(int(inst.end))
+    used = {int(set_id[inst.start])} | ({int(set_id[inst.end])} if closed else set())
+    length = sum(cost[a, b] for a, b in zip(route[:-1], route[1:], strict=True))
+    while True:
+        best = None
+        for j in range(len(set_id)):
+            if set_id[j] < 0 or int(set_id[j]) in used:
+                continue
+            for p in range(len(route)):
+                if p + 1 < len(route):
+                    a, b = route[p], route[p + 1]
+                    d = cost[a, j] + cost[j, b] - cost[a, b]
+                elif not closed:
+                    d = cost[route[p], j]
+                else:
+                    continue
+                if length + d <= float(inst.budget) + 1e-6 and (best is None or d < best[0]):
+                    best = (d, j, p)
+        if best is None:
+            return route
+        d, j, p = best
+        route.insert(p + 1, j)
+        used.add(int(set_id[j]))
+        length += d
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_hand_set_scores_give_nearest_insertion(closed):
+    """With the pointer silent and the step MLP scoring ``10 - added cost``, greedy decoding
+    is nearest insertion: the decoder's bookkeeping (positions, costs, masks) is checked
+    against a NumPy reference."""
+    model = StrategicTransformer(INSERT, rngs=nnx.Rngs(0))  # pointer scores start at 0
+    hidden_in, out = model.decoder.step_in, model.decoder.step_out
+    w = np.zeros(hidden_in.kernel.shape, np.float32)
+    w[0, 0] = -1.0  # feature 0: added cost / largest cost
+    hidden_in.kernel[...] = w
+    bias = np.zeros(hidden_in.bias.shape, np.float32)
+    bias[0] = 10.0  # hidden unit 0 = relu(10 - added cost) = 10 - added cost
+    hidden_in.bias[...] = bias
+    out.kernel[...] = np.eye(out.kernel.shape[0], 1, dtype=np.float32)
+    insts = instances(closed, range(20, 28))
+    trace = run(model, stack(insts))
+    nodes = np.asarray(trace.solution.nodes)
+    for i, inst in enumerate(insts):
+        want = _nearest_insertion(inst)
+        got = nodes[i][nodes[i] >= 0].tolist()
+        assert got == want, (i, got, want)
+
+
+@pytest.fixture(scope="module")
+def labelled() -> dict[str, np.ndarray]:
+    insts = instances(False, range(16))
+    sols = [solve_vns(i, seed=0, max_iters=100, max_no_improve=50) for i in insts]
+    return dataset_from_instances(insts, sols)
+
+
+@pytest.fixture(scope="module")
+def teacher(labelled):
+    return instances_from_dataset(labelled), jnp.asarray(labelled["teacher_nodes"])
+
+
+def test_teacher_forcing_states(teacher):
+    """States follow a random order of entry: m + 1 valid steps, the right answers are the
+    teacher's nodes not yet in (then END), all allowed, and the order depends on the key
+    only."""
+    inst, nodes = teacher
+    model = untrained(INSERT, 2)
+    tf = teacher_forced_logits(model, inst, nodes, order_key=jax.random.key(5))
+    again = teacher_forced_logits(model, inst, nodes, order_key=jax.random.key(5))
+    other = teacher_forced_logits(model, inst, nodes, order_key=jax.random.key(6))
+    np.testing.assert_array_equal(np.asarray(tf.target), np.asarray(again.target))
+    assert (np.asarray(tf.target) != np.asarray(other.target)).any()
+    targets, valid = np.asarray(tf.targets), np.asarray(tf.valid)
+    allowed, target = np.asarray(tf.allowed), np.asarray(tf.target)
+    n = inst.set_id.shape[-1]
+    for i in range(nodes.shape[0]):
+        visits = [int(x) for x in np.asarray(nodes[i])[1:] if x >= 0]
+        m = len(visits)
+        assert valid[i].sum() == m + 1
+        for s in range(m + 1):
+            right = set(np.flatnonzero(targets[i, s, :n]).tolist())
+            assert right <= set(visits) and len(right) == m - s
+            assert targets[i, s, n] == (s == m)
+            assert allowed[i, s][targets[i, s]].all()
+            assert targets[i, s, target[i, s]]
+        # the order of entry visits every teacher node once
+        assert sorted(target[i, :m].tolist()) == sorted(visits)
+    assert np.isfinite(np.asarray(imitation_stats(tf))).all()
+
+
+def test_any_of_the_right_answers_loss():
+    """With several right entries the likelihood is their summed probability, and an
+    arg-max is right when it is any of them."""
+    probs = np.array([[[0.5, 0.2, 0.2, 0.1], [0.1, 0.1, 0.7, 0.1]]], np.float32)
+    targets = np.array([[[False, True, True, False], [True, False, False, False]]])
+    tf = TeacherForcing(
+        log_probs=jnp.log(probs), target=jnp.array([[1, 0]]), valid=jnp.array([[True, True]]),
+        targets=jnp.asarray(targets),
+    )  # fmt: skip
+    nll, correct, steps = np.asarray(imitation_stats(tf))
+    np.testing.assert_allclose(nll, -np.log(0.4) - np.log(0.1), rtol=1e-5)
+    assert correct == 0 and steps == 2
+    tf = tf.replace(targets=jnp.asarray(~targets))
+    nll, correct, _ = np.asarray(imitation_stats(tf))
+    np.testing.assert_allclose(nll, -np.log(0.6) - np.log(0.9), rtol=1e-5)
+    assert correct == 2
+
+
+def test_insertion_decoder_trains(labelled):
+    """Behaviour cloning of the insertion decoder: the loss falls and the validation loss
+    (a fixed order of entry) is deterministic."""
+    data = {k: jnp.asarray(v) for k, v in labelled.items()}
+    recipe = TrainConfig(epochs=4, batch_size=8, decay_every=2)
+    graphdef, states = init_states(INSERT, recipe, seeds=[0], lrs=[3e-3])
+    epoch = make_train_epoch(graphdef, recipe, 16)
+    evaluate_fn = make_evaluate(graphdef, 8, 16)
+    before = np.asarray(evaluate_fn(states.params, data))[0]
+    keys = jnp.stack([jax.random.key(0)])
+    for _ in range(6):
+        states, _ = epoch(states, data, keys)
+    after = np.asarray(evaluate_fn(states.params, data))[0]
+    np.testing.assert_array_equal(after, np.asarray(evaluate_fn(states.params, data))[0])
+    assert after[0] / after[2] < before[0] / before[2] - 0.2
+
+
+def test_config_names_a_bad_decoder():
+    with pytest.raises(ValueError, match="decoder"):
+        dataclasses.replace(INSERT, decoder="prepend")
