@@ -44,7 +44,7 @@ import numpy as np
 from bfsop_jax import files
 from bfsop_jax.config import EVAL_SEED_START, parse_seed_range
 from bfsop_jax.data.generate import DataConfig, generate_dataset, pose_tasks
-from bfsop_jax.data.shards import merge_datasets
+from bfsop_jax.data.shards import ShardStore, merge_datasets
 from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.model import DECODERS
 from bfsop_jax.policy import StrategicPolicy
@@ -176,6 +176,11 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         "--merge-data", default=None, metavar="DIR1,DIR2,...",
         help="merge the dataset directories of --shard runs into --data-dir",
     )  # fmt: skip
+    ap.add_argument(
+        "--extra-data", default=None, metavar="DIR1,DIR2,...",
+        help="train: more datasets (e.g. another preset's, same N and K) added to the "
+        "training set, each with its own last houses added to the validation set",
+    )  # fmt: skip
     ap.add_argument("--checkpoint", default=None, help="eval: trained run dir (default --out)")
     ap.add_argument("--eval-seeds", default=None, help="eval house seeds START:END (held out)")
     ap.add_argument("--houses", type=int, default=None, help="override: training houses")
@@ -234,6 +239,10 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         args.compare = [d for d in (x.strip() for x in args.compare.split(",")) if d]
         if not args.compare:
             raise ValueError("--compare expects a comma-separated list of models")
+    if args.extra_data is not None:
+        args.extra_data = [d for d in (x.strip() for x in args.extra_data.split(",")) if d]
+        if not args.extra_data:
+            raise ValueError("--extra-data expects a comma-separated list of directories")
     if args.lr is not None and not args.lr > 0:
         raise ValueError(f"--lr must be a positive learning rate, got {args.lr}")
     if args.shard is not None:
@@ -351,9 +360,50 @@ def stage_data(args, preset: DistillPreset, data_dir: Path):
     return store, cfg
 
 
+def _concat(parts: list[dict[str, np.ndarray]], names: list[str]) -> dict[str, np.ndarray]:
+    """One dataset from several with the same fields and shapes (ValueError naming the
+    directory that differs)."""
+    first = parts[0]
+    for part, name in zip(parts[1:], names[1:], strict=True):
+        for key in first:
+            if key not in part or part[key].shape[1:] != first[key].shape[1:]:
+                shape = part[key].shape[1:] if key in part else "missing"
+                raise ValueError(
+                    f"--extra-data {name}: field {key!r} has shape {shape}, the training "
+                    f"data's has {first[key].shape[1:]} (train on datasets of one N and K)"
+                )
+    return {k: np.concatenate([p[k] for p in parts]) for k in first}
+
+
+def _with_extra_data(args, train_ds, val_ds, meta: dict[str, Any]):
+    """Add the ``--extra-data`` directories: their training houses to the training set,
+    their validation houses (by their own preset) to the validation set."""
+    trains, vals, names = [train_ds], [val_ds], [str(meta["data_dir"])]
+    meta["extra_data"] = []
+    for directory in args.extra_data or []:
+        store = ShardStore.open(directory)
+        cfg = DataConfig(**store.config)
+        missing = [i for i in range(cfg.n_shards) if i not in set(store.complete_shards())]
+        if missing:
+            raise ValueError(f"--extra-data {directory}: shards {_indices(missing)} missing")
+        val_houses = PRESETS[cfg.preset].val_houses if cfg.preset in PRESETS else 0
+        extra_train, extra_val = _split(store, cfg, val_houses)
+        trains.append(extra_train)
+        vals.append(extra_val)
+        names.append(directory)
+        meta["extra_data"].append({"data_dir": directory, "data_config": store.config})
+    if len(trains) == 1:
+        return train_ds, val_ds
+    train_ds = _concat(trains, names)
+    kept = [(v, n) for v, n in zip(vals, names, strict=True) if v is not None]
+    val_ds = _concat([v for v, _ in kept], [n for _, n in kept]) if kept else None
+    return train_ds, val_ds
+
+
 def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> dict[str, Any]:
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
     meta = {"data_dir": str(store.root), "data_config": dataclasses.asdict(cfg)}
+    train_ds, val_ds = _with_extra_data(args, train_ds, val_ds, meta)
     runs = {"main": (out, {"decoder": args.decoder} if args.decoder else {})}
     if args.ablations:
         for name, kw in ABLATIONS.items():

@@ -193,15 +193,23 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
 
 def test_distill_trains_the_insertion_decoder(tmp_path, smoke_data_dir):
     """``--decoder insertion`` trains the insertion decoder (recorded in config.json), its
-    policy plans feasible plans, and reward fine-tuning refuses it by name."""
+    policy plans feasible plans, and reward fine-tuning refuses it by name. The run also
+    takes ``--extra-data`` (here the same dataset again: twice the training instances)."""
     from experiments import distill
 
     run = tmp_path / "ins"
     distill.main(["--preset", "smoke", "--stage", "train", "--out", str(run), "--data-dir",
                   str(smoke_data_dir), "--epochs", "1", "--decoder", "insertion",
-                  "--no-progress"])  # fmt: skip
+                  "--extra-data", str(smoke_data_dir), "--no-progress"])  # fmt: skip
     config = json.loads((run / "config.json").read_text())
     assert config["run"]["model"]["decoder"] == "insertion"
+    store = ShardStore.open(smoke_data_dir)
+    cfg = DataConfig(**store.config)
+    single = distill._split(store, cfg, distill.PRESETS["smoke"].val_houses)[0]
+    assert config["dataset"]["train"]["instances"] == 2 * len(single["budget"])
+    assert config["dataset"]["meta"]["extra_data"][0]["data_dir"] == str(smoke_data_dir)
+    with pytest.raises(ValueError, match="extra-data"):
+        distill.main(["--preset", "smoke", "--stage", "train", "--extra-data", " , "])
     policy = StrategicPolicy.load(run)
     assert policy.model.config.decoder == "insertion"
     inst = random_instance(3, num_sets=4, viewpoints=2)
