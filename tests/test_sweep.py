@@ -37,6 +37,10 @@ def test_grid_parsing_types_and_groups():
     replica = combo.replica(config)
     assert (replica.seed, replica.lr, replica.augment) == (
         combo.settings["seed"], combo.settings["lr"], combo.settings["augment"])  # fmt: skip
+    # the decoder changes the program: one group per decoder
+    parts = groups(parse_grid_args(["decoder=append,insertion", "lr=1e-3,3e-3"]))
+    assert [g.name for g in parts] == ["decoder-append", "decoder-insertion"]
+    assert parts[1].members[0].run_config(base).model.decoder == "insertion"
 
 
 @pytest.mark.parametrize(
@@ -52,6 +56,7 @@ def test_grid_parsing_types_and_groups():
         (["heads=3"], "heads-3"),  # does not divide the width
         (["lr=-1"], "Replica.lr must be positive"),
         (["lr"], "expected key=v1,v2"),
+        (["decoder=append,prepend"], "decoder-prepend"),  # not a decoder
     ],
 )
 def test_bad_grids_name_the_key(items, message):

@@ -67,10 +67,11 @@ GROUP_KEYS: dict[str, tuple[type, str, str]] = {
     "budget_aware": (bool, "model", "budget_aware"),
     "budget_mask": (bool, "model", "budget_mask"),
     "step_features": (bool, "model", "step_features"),
+    "decoder": (str, "model", "decoder"),  # append | insertion
     "batch_size": (int, "train", "batch_size"),
     "epochs": (int, "train", "epochs"),
 }
-_TYPE_NAMES = {int: "an integer", float: "a number", bool: "true or false"}
+_TYPE_NAMES = {int: "an integer", float: "a number", bool: "true or false", str: "a name"}
 
 
 def _key_type(key: str) -> type:
@@ -86,6 +87,10 @@ def _coerce(key: str, value: Any) -> Any:
     """``value`` as the key's type (strings from the command line are parsed)."""
     kind = _key_type(key)
     want = _TYPE_NAMES[kind]
+    if kind is str:  # checked against the model's choices with the other settings
+        if not isinstance(value, str):
+            raise ValueError(f"grid key {key!r}: {value!r} is not {want}")
+        return value.strip()
     if isinstance(value, str):
         text = value.strip()
         if kind is bool:
