@@ -193,7 +193,7 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
 
 def test_distill_trains_the_insertion_decoder(tmp_path, smoke_data_dir):
     """``--decoder insertion`` trains the insertion decoder (recorded in config.json), its
-    policy plans feasible plans, and reward fine-tuning refuses it by name. The run also
+    policy plans feasible plans and it fine-tunes on reward. The run also
     takes ``--extra-data`` (here the same dataset again: twice the training instances)."""
     from experiments import distill
 
@@ -215,9 +215,11 @@ def test_distill_trains_the_insertion_decoder(tmp_path, smoke_data_dir):
     inst = random_instance(3, num_sets=4, viewpoints=2)
     sol = policy.plan(inst)
     assert evaluate(inst, np.asarray(sol.nodes))[2]
-    with pytest.raises(ValueError, match="append decoder"):
-        distill.main(["--preset", "smoke", "--stage", "rl", "--out", str(run), "--data-dir",
-                      str(smoke_data_dir), "--rl-epochs", "1", "--no-progress"])  # fmt: skip
+    # reward fine-tuning scores the sampled plans along the insertion decoder's choices
+    rows = distill.main(["--preset", "smoke", "--stage", "rl", "--out", str(run), "--data-dir",
+                         str(smoke_data_dir), "--rl-epochs", "1", "--rl-samples", "2",
+                         "--no-progress"])["rl"]  # fmt: skip
+    assert [r["epoch"] for r in rows] == [0, 1] and np.isfinite(rows[1]["train_bc_loss"])
     with pytest.raises(SystemExit):
         distill.main(["--preset", "smoke", "--stage", "train", "--decoder", "prepend"])
 

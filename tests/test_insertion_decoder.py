@@ -12,7 +12,7 @@ import pytest
 from flax import nnx
 
 from bfsop_jax.model import ModelConfig, StrategicTransformer, decode, teacher_forced_logits
-from bfsop_jax.model.decode import TeacherForcing
+from bfsop_jax.model.decode import TeacherForcing, forced_logits
 from bfsop_jax.sop import evaluate, solve_vns
 from bfsop_jax.sop.io import random_instance
 from bfsop_jax.training import TrainConfig, dataset_from_instances, instances_from_dataset
@@ -138,6 +138,23 @@ def test_hand_set_scores_give_nearest_insertion(closed):
         want = _nearest_insertion(inst)
         got = nodes[i][nodes[i] >= 0].tolist()
         assert got == want, (i, got, want)
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_forced_logits_replay_the_decoding(closed):
+    """Scoring a model's own sampled choices replays its states: the same step
+    distributions as while decoding, the same number of steps (the END included)."""
+    batch = stack(instances(closed))
+    model = untrained(INSERT, 4)
+    trace = run(model, batch, jax.random.key(2), greedy=False)
+    tf = forced_logits(model, batch, trace.choices)
+    choices = np.asarray(trace.choices)
+    valid = np.asarray(tf.valid)
+    stopped = (choices < 0).any(axis=1)
+    steps = (choices >= 0).sum(axis=1) + stopped  # the END step counts when it was taken
+    np.testing.assert_array_equal(valid.sum(1), steps)
+    probs = np.exp(np.asarray(tf.log_probs))
+    np.testing.assert_allclose(probs[valid], np.asarray(trace.probs)[valid], atol=1e-5)
 
 
 @pytest.fixture(scope="module")

@@ -47,6 +47,7 @@ __all__ = [
     "TeacherForcing",
     "allowed_next",  # re-exported from bfsop_jax.sop.rules
     "decode",
+    "forced_logits",
     "greedy_decode",
     "plan_value",  # re-exported from bfsop_jax.sop.rules
     "sample_decode",
@@ -74,6 +75,7 @@ class DecodeTrace:
     solution: Solution  # nodes [B, T], reward [B], cost [B]
     probs: Any  # [B, S, N+1] float32: next-entry probabilities at each step (0 after END)
     allowed: Any  # [B, S, N+1] bool: the mask of each step
+    choices: Any = None  # [B, S] int32: the node chosen at each step, -1 for END and after
 
 
 def _features(instance: SOPInstance, features: NodeFeatures | None) -> NodeFeatures:
@@ -320,56 +322,132 @@ def decode(
         solution=Solution(nodes=nodes, reward=reward, cost=cost),
         probs=jnp.swapaxes(probs, 0, 1),
         allowed=jnp.swapaxes(allowed, 0, 1),
+        choices=chosen.T,
     )
+
+
+def _insertion_start(instance: SOPInstance, steps: int):
+    """Carry of an insertion decoding before its first step: route [B, T+1], m [B],
+    visited sets [B, K], done [B], last inserted node [B]."""
+    b = instance.set_id.shape[0]
+    empty = jnp.full((b, steps + 1), -1, jnp.int32).at[:, 0].set(instance.start)
+    route, m = jax.vmap(plan_route)(instance, empty)  # start (and a closed tour's end)
+    return route, m, blocked_sets(instance), jnp.zeros((b,), bool), jnp.asarray(instance.start)
+
+
+def _insert(instance: SOPInstance, carry, after: jax.Array, node: jax.Array, stop: jax.Array):
+    """Put ``node`` [B] into each route right after position ``after[node]`` (rows that
+    stop keep theirs); returns the next carry."""
+    route, m, visited, _, last = carry
+    slot = jnp.arange(route.shape[-1])
+    j = jnp.clip(node, 0)
+    p = jnp.take_along_axis(after, j[:, None], axis=1)
+    shifted = jnp.where(
+        slot <= p, route, jnp.where(slot == p + 1, j[:, None], jnp.roll(route, 1, axis=-1))
+    )
+    route = jnp.where(stop[:, None], route, shifted).astype(jnp.int32)
+    sets = jnp.take_along_axis(jnp.asarray(instance.set_id), j[:, None], axis=1)[:, 0]
+    visited = visited | (jax.nn.one_hot(sets, visited.shape[-1], dtype=bool) & ~stop[:, None])
+    return route, m + (~stop), visited, stop, jnp.where(stop, last, j)
+
+
+def _insertion_scores(model, instance, features, cache, carry, index, restrict_first=None):
+    """The decoder's scores [B, N+1] in an insertion state, with its mask and moves."""
+    route, m, visited, _, last = carry
+    delta, after, travelled = jax.vmap(insertion_costs)(instance, route, m)  # [B, N]
+    allowed = insertion_mask(
+        instance, visited[:, None], delta[:, None], travelled[:, None], model.config.budget_mask
+    )[:, 0]
+    if restrict_first is not None:
+        allowed = restrict_first(allowed, index)
+    step_in = None
+    if model.config.step_features:
+        step_in = insertion_step_features(instance, features, delta[:, None], travelled[:, None])
+    budget_left = _budget_left(model, instance, travelled[:, None], cache.cost_scale)
+    scores = model.decoder(cache, last[:, None], allowed[:, None], budget_left, step_in)
+    return scores[:, 0], allowed, after
 
 
 def _decode_insertion(model, instance, features, cache, keys, restrict_first, choose, steps):
     """:func:`decode` for the insertion decoder: each chosen node goes into the plan where
     it adds the least cost (``bfsop_jax.sop.two_opt.insertion_costs``)."""
-    b, n = instance.set_id.shape
+    n = instance.set_id.shape[-1]
     t = steps + 1
-    slot = jnp.arange(t + 1)
-    empty = jnp.full((b, t), -1, jnp.int32).at[:, 0].set(instance.start)
-    route0, m0 = jax.vmap(plan_route)(instance, empty)  # start (and a closed tour's end)
 
     def step(carry, inputs):
         step_key, index = inputs
-        route, m, visited, done, last = carry
-        delta, after, travelled = jax.vmap(insertion_costs)(instance, route, m)  # [B, N]
-        allowed = insertion_mask(
-            instance, visited[:, None], delta[:, None], travelled[:, None],
-            model.config.budget_mask,
-        )  # fmt: skip
-        allowed = restrict_first(allowed[:, 0], index)
-        step_in = None
-        if model.config.step_features:
-            step_in = insertion_step_features(
-                instance, features, delta[:, None], travelled[:, None]
-            )
-        budget_left = _budget_left(model, instance, travelled[:, None], cache.cost_scale)
-        scores = model.decoder(cache, last[:, None], allowed[:, None], budget_left, step_in)
-        node, stop, probs = choose(scores[:, 0], step_key, done)
-        j = jnp.clip(node, 0)
-        p = jnp.take_along_axis(after, j[:, None], axis=1)
-        shifted = jnp.where(
-            slot <= p, route, jnp.where(slot == p + 1, j[:, None], jnp.roll(route, 1, axis=-1))
+        scores, allowed, after = _insertion_scores(
+            model, instance, features, cache, carry, index, restrict_first
         )
-        route = jnp.where(stop[:, None], route, shifted).astype(jnp.int32)
-        sets = jnp.take_along_axis(jnp.asarray(instance.set_id), j[:, None], axis=1)[:, 0]
-        visited = visited | (jax.nn.one_hot(sets, visited.shape[-1], dtype=bool) & ~stop[:, None])
-        carry = (route, m + (~stop), visited, stop, jnp.where(stop, last, j))
-        return carry, (node, probs, allowed)
+        node, stop, probs = choose(scores, step_key, carry[3])
+        return _insert(instance, carry, after, node, stop), (node, probs, allowed)
 
-    carry0 = (route0, m0, blocked_sets(instance), jnp.zeros((b,), bool), instance.start)
-    (route, m, _, _, _), (_, probs, allowed) = jax.lax.scan(step, carry0, (keys, jnp.arange(steps)))
-    keep = (slot[:t] <= m[:, None]) | ((slot[:t] == m[:, None] + 1) & (route[:, :t] < n))
+    carry0 = _insertion_start(instance, steps)
+    (route, m, _, _, _), (chosen, probs, allowed) = jax.lax.scan(
+        step, carry0, (keys, jnp.arange(steps))
+    )
+    slot = jnp.arange(t)
+    keep = (slot <= m[:, None]) | ((slot == m[:, None] + 1) & (route[:, :t] < n))
     nodes = jnp.where(keep, route[:, :t], -1).astype(jnp.int32)
     reward, cost = plan_value(instance, nodes)
     return DecodeTrace(
         solution=Solution(nodes=nodes, reward=reward, cost=cost),
         probs=jnp.swapaxes(probs, 0, 1),
         allowed=jnp.swapaxes(allowed, 0, 1),
+        choices=chosen.T,
     )
+
+
+def forced_logits(
+    model: StrategicTransformer,
+    instance: SOPInstance,
+    choices: jax.Array,
+    features: NodeFeatures | None = None,
+) -> TeacherForcing:
+    """Decoder log-probabilities along a given sequence of choices (e.g. sampled plans'
+    :attr:`DecodeTrace.choices`, for reward fine-tuning).
+
+    Args:
+        model: the network (either decoder).
+        instance: batch of B instances.
+        choices: [B, S] int32, the node chosen at each step, -1 for END and after.
+        features: precomputed :func:`node_features` (e.g. a coordinate symmetry).
+
+    Returns:
+        :class:`TeacherForcing` with ``target`` the choice (N for END); a step is valid
+        until and including the END. For the append decoder this is
+        :func:`teacher_forced_logits` of the plan; the insertion decoder replays the
+        insertions (no network) and scores every state in one pass.
+    """
+    b, steps = choices.shape
+    n = instance.set_id.shape[-1]
+    choices = jnp.asarray(choices, jnp.int32)
+    if model.config.decoder == "append":
+        nodes = jnp.concatenate([jnp.asarray(instance.start)[:, None], choices], axis=1)
+        return teacher_forced_logits(model, instance, nodes, features)
+    features = _features(instance, features)
+    cache = model.prepare(features, instance.start)
+
+    def replay(carry, node):
+        delta, after, travelled = jax.vmap(insertion_costs)(instance, carry[0], carry[1])
+        stop = carry[3] | (node < 0)
+        state = (carry[2], delta, travelled, carry[4], carry[3])
+        return _insert(instance, carry, after, node, stop), state
+
+    _, states = jax.lax.scan(replay, _insertion_start(instance, steps), choices.T)
+    visited, delta, travelled, last, done = (jnp.swapaxes(x, 0, 1) for x in states)
+    target = jnp.where(choices >= 0, choices, n).astype(jnp.int32)
+    allowed = insertion_mask(instance, visited, delta, travelled, model.config.budget_mask)
+    allowed = allowed | jax.nn.one_hot(target, n + 1, dtype=bool)
+    step = None
+    if model.config.step_features:
+        step = insertion_step_features(instance, features, delta, travelled)
+    budget_left = _budget_left(model, instance, travelled, features.cost_scale)
+    scores = model.decoder(cache, last.astype(jnp.int32), allowed, budget_left, step)
+    return TeacherForcing(
+        log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=~done,
+        allowed=allowed,
+    )  # fmt: skip
 
 
 def greedy_decode(

@@ -50,7 +50,7 @@ from flax import nnx, struct
 
 from bfsop_jax import checkpoint as ckpt
 from bfsop_jax.files import write_text
-from bfsop_jax.model.decode import decode, plan_value, teacher_forced_logits
+from bfsop_jax.model.decode import decode, forced_logits, plan_value, teacher_forced_logits
 from bfsop_jax.model.features import node_features, random_symmetry
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.sop.two_opt import budget_gate
@@ -138,11 +138,14 @@ def _rl_epoch(state: RLState, data, key, *, graphdef, rl: RLConfig, batch_size, 
     m = rl.samples
     tx = _optimizer(rl)
 
-    def loss(params, inst, tiled, feats, plans, adv, teacher_nodes):
+    def loss(params, inst, tiled, feats, trace, adv, teacher_nodes, order_key):
         model = nnx.merge(graphdef, params)
-        tf = teacher_forced_logits(model, tiled, plans, feats)
+        if model.config.decoder == "append":
+            tf = teacher_forced_logits(model, tiled, trace.solution.nodes, feats)
+        else:  # the insertion decoder's states follow its choices, not the plan's order
+            tf = forced_logits(model, tiled, trace.choices, feats)
         rl_loss = -jnp.mean(adv * _plan_log_prob(tf))
-        bc = imitation_stats(teacher_forced_logits(model, inst, teacher_nodes))
+        bc = imitation_stats(teacher_forced_logits(model, inst, teacher_nodes, None, order_key))
         bc_loss = bc[0] / jnp.maximum(bc[2], 1.0)
         return rl_loss + rl.bc_weight * bc_loss, bc
 
@@ -154,18 +157,18 @@ def _rl_epoch(state: RLState, data, key, *, graphdef, rl: RLConfig, batch_size, 
         sym_key, sample_key = jax.random.split(step_key)
         feats = random_symmetry(node_features(tiled), sym_key, rl.augment)
         model = nnx.merge(graphdef, state.params)
-        plans = decode(
-            model, tiled, sample_key, rl.temperature, greedy=False, features=feats
-        ).solution
-        plans = jax.lax.stop_gradient(plans)
+        sample_key, order_key = jax.random.split(sample_key)
+        trace = decode(model, tiled, sample_key, rl.temperature, greedy=False, features=feats)
+        plans = jax.lax.stop_gradient(trace.solution)
         teacher_reward, _ = plan_value(inst, batch["teacher_nodes"])  # [B]
         reward = budget_gate(tiled, plans).reward.reshape(-1, m)  # [B, M]: what would run
         baseline = (jnp.sum(reward, axis=1, keepdims=True) - reward) / (m - 1)
         # the instance's reward scale: the teacher's (or a sample's, where one beats it)
         scale = jnp.maximum(jnp.maximum(teacher_reward, jnp.max(reward, axis=1)), 1e-6)[:, None]
         adv = ((reward - baseline) / scale).reshape(-1)
+        forced = jax.lax.stop_gradient(trace)
         grads, bc = jax.grad(loss, has_aux=True)(
-            state.params, inst, tiled, feats, plans.nodes, adv, batch["teacher_nodes"]
+            state.params, inst, tiled, feats, forced, adv, batch["teacher_nodes"], order_key
         )
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
@@ -256,11 +259,6 @@ def finetune_rl(
         raise ValueError(f"reward fine-tuning needs a trained run with model/ in {base_run}")
     base_config = ckpt.read_config(base_run)
     model_config = ModelConfig.from_dict(base_config["run"]["model"])
-    if model_config.decoder != "append":
-        raise ValueError(
-            f"reward fine-tuning re-scores plans by teacher forcing, which needs the append "
-            f"decoder; {base_run} has decoder {model_config.decoder!r}"
-        )
     info = dataset_info(train_ds)
     for key in ("num_nodes", "num_sets"):
         if info[key] != int(base_config["dataset"][key]):
