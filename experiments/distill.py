@@ -178,7 +178,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     )  # fmt: skip
     ap.add_argument(
         "--extra-data", default=None, metavar="DIR1,DIR2,...",
-        help="train: more datasets (e.g. another preset's, same N and K) added to the "
+        help="train / rl: more datasets (e.g. another preset's, same N and K) added to the "
         "training set, each with its own last houses added to the validation set",
     )  # fmt: skip
     ap.add_argument("--checkpoint", default=None, help="eval: trained run dir (default --out)")
@@ -609,6 +609,7 @@ def stage_rl(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> 
     rl = RLConfig(epochs=args.rl_epochs, lr=args.rl_lr, samples=args.rl_samples,
                   bc_weight=args.rl_bc_weight)  # fmt: skip
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
+    train_ds, val_ds = _with_extra_data(args, train_ds, val_ds, {"data_dir": str(store.root)})
     if val_ds is None:
         raise ValueError("--stage rl needs validation houses (a dataset of several shards)")
     rl_dir = out / "rl"
