@@ -39,7 +39,7 @@ from bfsop_jax.sop.rules import (
     plan_value,
     prefix_states,
 )
-from bfsop_jax.sop.two_opt import insertion_costs, plan_route
+from bfsop_jax.sop.two_opt import insert_after, insertion_costs, plan_route
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 
 __all__ = [
@@ -204,13 +204,9 @@ def _insertion_teacher_forcing(
     targets = jnp.concatenate([jnp.any(hits, axis=2), at_end[..., None]], axis=-1)
     valid = s[..., 0] <= m_full[:, None]
 
-    allowed = insertion_mask(instance, visited, delta, travelled, model.config.budget_mask)
-    allowed = allowed | targets
-    step = None
-    if model.config.step_features:
-        step = insertion_step_features(instance, features, delta, travelled)
-    budget_left = _budget_left(model, instance, travelled, features.cost_scale)
-    scores = model.decoder(cache, last.astype(jnp.int32), allowed, budget_left, step)
+    scores, allowed = _score_insertion_states(
+        model, instance, features, cache, visited, delta, travelled, last, lambda a: a | targets
+    )
     return TeacherForcing(
         log_probs=jax.nn.log_softmax(scores, axis=-1),
         target=target,
@@ -339,33 +335,36 @@ def _insert(instance: SOPInstance, carry, after: jax.Array, node: jax.Array, sto
     """Put ``node`` [B] into each route right after position ``after[node]`` (rows that
     stop keep theirs); returns the next carry."""
     route, m, visited, _, last = carry
-    slot = jnp.arange(route.shape[-1])
     j = jnp.clip(node, 0)
     p = jnp.take_along_axis(after, j[:, None], axis=1)
-    shifted = jnp.where(
-        slot <= p, route, jnp.where(slot == p + 1, j[:, None], jnp.roll(route, 1, axis=-1))
-    )
-    route = jnp.where(stop[:, None], route, shifted).astype(jnp.int32)
+    route = jnp.where(stop[:, None], route, insert_after(route, p, j[:, None])).astype(jnp.int32)
     sets = jnp.take_along_axis(jnp.asarray(instance.set_id), j[:, None], axis=1)[:, 0]
     visited = visited | (jax.nn.one_hot(sets, visited.shape[-1], dtype=bool) & ~stop[:, None])
     return route, m + (~stop), visited, stop, jnp.where(stop, last, j)
 
 
-def _insertion_scores(model, instance, features, cache, carry, index, restrict_first=None):
-    """The decoder's scores [B, N+1] in an insertion state, with its mask and moves."""
+def _score_insertion_states(model, instance, features, cache, visited, delta, travelled, last,
+                            adjust):  # fmt: skip
+    """Scores [B, S, N+1] and mask of S insertion states per instance (visited [B, S, K],
+    delta [B, S, N], travelled and last [B, S]); ``adjust`` edits the mask first."""
+    allowed = adjust(insertion_mask(instance, visited, delta, travelled, model.config.budget_mask))
+    step = None
+    if model.config.step_features:
+        step = insertion_step_features(instance, features, delta, travelled)
+    budget_left = _budget_left(model, instance, travelled, cache.cost_scale)
+    scores = model.decoder(cache, last.astype(jnp.int32), allowed, budget_left, step)
+    return scores, allowed
+
+
+def _insertion_scores(model, instance, features, cache, carry, index, restrict_first):
+    """The decoder's scores [B, N+1] in one insertion state, with its mask and moves."""
     route, m, visited, _, last = carry
     delta, after, travelled = jax.vmap(insertion_costs)(instance, route, m)  # [B, N]
-    allowed = insertion_mask(
-        instance, visited[:, None], delta[:, None], travelled[:, None], model.config.budget_mask
-    )[:, 0]
-    if restrict_first is not None:
-        allowed = restrict_first(allowed, index)
-    step_in = None
-    if model.config.step_features:
-        step_in = insertion_step_features(instance, features, delta[:, None], travelled[:, None])
-    budget_left = _budget_left(model, instance, travelled[:, None], cache.cost_scale)
-    scores = model.decoder(cache, last[:, None], allowed[:, None], budget_left, step_in)
-    return scores[:, 0], allowed, after
+    scores, allowed = _score_insertion_states(
+        model, instance, features, cache, visited[:, None], delta[:, None], travelled[:, None],
+        last[:, None], lambda a: restrict_first(a[:, 0], index)[:, None],
+    )  # fmt: skip
+    return scores[:, 0], allowed[:, 0], after
 
 
 def _decode_insertion(model, instance, features, cache, keys, restrict_first, choose, steps):
@@ -437,13 +436,10 @@ def forced_logits(
     _, states = jax.lax.scan(replay, _insertion_start(instance, steps), choices.T)
     visited, delta, travelled, last, done = (jnp.swapaxes(x, 0, 1) for x in states)
     target = jnp.where(choices >= 0, choices, n).astype(jnp.int32)
-    allowed = insertion_mask(instance, visited, delta, travelled, model.config.budget_mask)
-    allowed = allowed | jax.nn.one_hot(target, n + 1, dtype=bool)
-    step = None
-    if model.config.step_features:
-        step = insertion_step_features(instance, features, delta, travelled)
-    budget_left = _budget_left(model, instance, travelled, features.cost_scale)
-    scores = model.decoder(cache, last.astype(jnp.int32), allowed, budget_left, step)
+    chosen = jax.nn.one_hot(target, n + 1, dtype=bool)
+    scores, allowed = _score_insertion_states(
+        model, instance, features, cache, visited, delta, travelled, last, lambda a: a | chosen
+    )
     return TeacherForcing(
         log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=~done,
         allowed=allowed,

@@ -33,7 +33,14 @@ import jax.numpy as jnp
 from bfsop_jax.sop.rules import blocked_sets, open_nodes, plan_end, plan_reward
 from bfsop_jax.sop.types import Solution, SOPInstance
 
-__all__ = ["two_opt", "budget_gate", "insertion_costs", "insertion_fill", "plan_route"]
+__all__ = [
+    "two_opt",
+    "budget_gate",
+    "insert_after",
+    "insertion_costs",
+    "insertion_fill",
+    "plan_route",
+]
 
 
 def _batched(fn):
@@ -254,6 +261,14 @@ def plan_route(instance: SOPInstance, nodes: jax.Array) -> tuple[jax.Array, jax.
     return _route(instance, nodes)
 
 
+def insert_after(route: jax.Array, after: jax.Array, node: jax.Array) -> jax.Array:
+    """``route`` [..., T+1] with ``node`` put right after position ``after`` (both
+    broadcast against the leading axes, e.g. [B, 1]); later entries move one slot on."""
+    slot = jnp.arange(route.shape[-1])
+    moved = jnp.roll(route, 1, axis=-1)  # slot i holds route[i - 1] (slot 0 is never used)
+    return jnp.where(slot <= after, route, jnp.where(slot == after + 1, node, moved))
+
+
 def insertion_costs(
     instance: SOPInstance, route: jax.Array, m: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -302,9 +317,7 @@ def _insertion_fill_single(instance: SOPInstance, solution: Solution) -> Solutio
         flat = jnp.argmin(score)
         p, j = flat // n, flat % n
         found = jnp.isfinite(score.reshape(-1)[flat])
-        shifted = jnp.where(
-            pos <= p, route, jnp.where(pos == p + 1, j, route[jnp.clip(pos - 1, 0)])
-        )
+        shifted = insert_after(route, p, j)
         new_route = jnp.where(found, shifted, route).astype(jnp.int32)
         return new_route, m + found, cost + jnp.where(found, delta[p, j], 0.0), found
 

@@ -298,13 +298,15 @@ def _teacher_forcing(
     """Teacher-forced decoder outputs on a minibatch; with ``key`` (and ``augment`` true),
     every instance is seen under a random one of the 8 coordinate symmetries, and an
     insertion decoder sees the teacher's nodes enter in a random order drawn from ``key``
-    (without ``key``: a fixed order)."""
+    (without ``key``: a fixed order). ``augment=None`` leaves the symmetries out of the
+    program."""
     model = nnx.merge(graphdef, params)
     inst = _instances(batch)
     features = order_key = None
     if key is not None:
         order_key = jax.random.fold_in(key, 1)
-        features = random_symmetry(node_features(inst), key, augment)
+        if augment is not None:
+            features = random_symmetry(node_features(inst), key, augment)
     return teacher_forced_logits(model, inst, batch["teacher_nodes"], features, order_key)
 
 
@@ -387,7 +389,7 @@ def _train_epoch(
     def loss(params, batch, key, hyper: Hyper):
         # the key also draws an insertion decoder's order of entry, so it is always given
         tf = _teacher_forcing(
-            graphdef, params, batch, key=key, augment=hyper.augment if augment else False
+            graphdef, params, batch, key=key, augment=hyper.augment if augment else None
         )
         stats = imitation_stats(tf)
         total = stats[0]
