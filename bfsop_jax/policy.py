@@ -69,6 +69,7 @@ class StrategicPolicy:
         self.num_nodes = int(num_nodes)
         self.num_sets = int(num_sets)
         self._graphdef, params = nnx.split(model, nnx.Param)
+        self._static_graph = _HashedOnce(self._graphdef)  # the jitted programs' static key
         self._params = jax.device_put(params, jax.devices()[0])
 
     # -- loading -------------------------------------------------------------------------
@@ -173,20 +174,24 @@ class StrategicPolicy:
         if not temperature > 0:
             raise ValueError(f"temperature must be positive, got {temperature}")
         padded, single, k = self._prepare(instance)
-        key = jax.random.key(0) if key is None else key
+        # the default key is made once and the batch axis of one instance is dropped in
+        # the program: on a CPU every eager op costs tens of microseconds
         sol = _plan_jit(
             self._params,
             padded,
-            key,
-            jnp.float32(temperature),
-            graphdef=self._graphdef,
+            _default_key() if key is None else key,
+            np.float32(temperature),
+            graphdef=self._static_graph,
             use_two_opt=bool(two_opt),
             augment=bool(augment),
             best_of=best_of,
             fill=bool(fill),
             multi_start=bool(multi_start),
+            single=single,
         )
-        return _unpad(sol, k, single)
+        if k == self.num_sets:
+            return sol
+        return sol.replace(nodes=sol.nodes[..., : plan_length(k)])
 
     def plan_without_two_opt(self, instance: SOPInstance, **options: Any) -> Solution:
         """:meth:`plan` with ``two_opt=False`` (decoding and budget gate only; Table III)."""
@@ -240,7 +245,7 @@ class StrategicPolicy:
         ``probs`` and ``allowed`` are over the model's N padded nodes plus END (index N).
         """
         padded, single, k = self._prepare(instance)
-        out = _trace_jit(self._params, padded, graphdef=self._graphdef)
+        out = _trace_jit(self._params, padded, graphdef=self._static_graph)
         out = out.replace(solution=_unpad(out.solution, k, False))
         return jax.tree_util.tree_map(lambda x: x[0], out) if single else out
 
@@ -260,25 +265,49 @@ class StrategicPolicy:
         return jax.device_put(padded, jax.devices()[0]), single, k
 
 
+class _HashedOnce:
+    """A static argument of ``jax.jit`` whose hash is computed once: hashing an NNX graph
+    definition walks the whole graph, 0.3 ms (demo model) to 0.5 ms (paper model) of every
+    single-instance plan on a 2-core CPU (``python -m benchmarks.bench_policy``)."""
+
+    def __init__(self, value: Any):
+        self.value = value
+        self._hash = hash(value)
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        return self is other or (isinstance(other, _HashedOnce) and self.value == other.value)
+
+
 @functools.partial(jax.jit, static_argnames=("graphdef",))
-def _trace_jit(params: Any, inst: SOPInstance, *, graphdef: nnx.GraphDef) -> DecodeTrace:
-    return decode(nnx.merge(graphdef, params), inst)
+def _trace_jit(params: Any, inst: SOPInstance, *, graphdef: _HashedOnce) -> DecodeTrace:
+    return decode(nnx.merge(graphdef.value, params), inst)
+
+
+@functools.cache
+def _default_key() -> jax.Array:
+    return jax.random.key(0)
 
 
 @functools.partial(
     jax.jit,
-    static_argnames=("graphdef", "use_two_opt", "augment", "best_of", "fill", "multi_start"),
-)
+    static_argnames=(
+        "graphdef", "use_two_opt", "augment", "best_of", "fill", "multi_start", "single",
+    ),
+)  # fmt: skip
 def _plan_jit(
     params, inst, key, temperature, *, graphdef, use_two_opt, augment, best_of, fill,
-    multi_start,
+    multi_start, single,
 ):  # fmt: skip
     # compiled once per (model graph, batch size, options); the body is looked up at trace
-    # time, which lets tests count traces
-    return _plan_program(
-        graphdef, params, inst, key, temperature, use_two_opt, augment, best_of, fill,
+    # time, which lets tests count traces. ``single``: drop the batch axis of one.
+    sol = _plan_program(
+        graphdef.value, params, inst, key, temperature, use_two_opt, augment, best_of, fill,
         multi_start,
     )  # fmt: skip
+    return jax.tree_util.tree_map(lambda x: x[0], sol) if single else sol
 
 
 def _plan_program(

@@ -67,10 +67,16 @@ class DistillPreset:
     eval_tasks: int = 24  # tasks posed per held-out house
     epochs: int | None = None  # None: the recipe's value
     seeds: tuple[int, ...] = (0,)
-    # decoder masks nodes that no longer fit the budget (END only when none does), and
-    # scores each candidate by its step features too (move cost, budget left, reward per
-    # distance: docs/model.md)
-    model_options: tuple[tuple[str, Any], ...] = (("budget_mask", True), ("step_features", True))
+    # decoder masks nodes that no longer fit the budget (END only when none does), scores
+    # each candidate by its step features too (move cost, budget left, reward per
+    # distance), puts a chosen node where it adds the least cost and improves the route
+    # after every insertion (docs/model.md)
+    model_options: tuple[tuple[str, Any], ...] = (
+        ("budget_mask", True),
+        ("step_features", True),
+        ("decoder", "insertion"),
+        ("refine", True),
+    )
     augment: bool = True  # train on random coordinate symmetries of each instance
     # navigation evaluation at the end (a reduced Table I protocol: these many held-out
     # houses x these categories, 0 houses = skip); the full one is experiments.evaluate
@@ -133,6 +139,10 @@ PRESETS: dict[str, DistillPreset] = {
         nav_houses=1,
         nav_categories=("HousePlant",),
         nav_methods=("fbe",),
+        # the paper's append decoder: the insertion decoder's programs (with the route
+        # improvement) take minutes to compile in every planner of the evaluation; tests of
+        # the insertion decoder and its CLI train it explicitly
+        model_options=(("budget_mask", True), ("step_features", True), ("decoder", "append")),
     ),
 }
 
@@ -193,13 +203,23 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     )  # fmt: skip
     ap.add_argument(
         "--decoder", default=None, choices=list(DECODERS),
-        help="override: how a chosen node enters the plan: append (the paper's pointer "
-        "decoding, default) or insertion (where it adds the least cost)",
+        help="override: how a chosen node enters the plan: insertion (where it adds the "
+        "least cost, default) or append (the paper's pointer decoding)",
     )  # fmt: skip
     ap.add_argument(
         "--lr", type=float, default=None,
         help="override: Adam learning rate of behaviour cloning (the preset's: demo 1e-3, "
         "paper 1e-4)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--on-policy", type=float, default=None, metavar="W",
+        help="train: weight of the loss on the student's own plans' states, labelled by the "
+        "teacher's nodes they still allow (insertion decoder; default 0: teacher states only)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--init", default=None, metavar="DIR",
+        help="train: start from this trained model's parameters (same model config), e.g. "
+        "to fine-tune a shipped model with --on-policy",
     )  # fmt: skip
     ap.add_argument("--resume", action="store_true", help="continue an interrupted training run")
     ap.add_argument("--ablations", action="store_true", help="also train the ablations")
@@ -245,6 +265,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
             raise ValueError("--extra-data expects a comma-separated list of directories")
     if args.lr is not None and not args.lr > 0:
         raise ValueError(f"--lr must be a positive learning rate, got {args.lr}")
+    if args.on_policy is not None and not args.on_policy >= 0:
+        raise ValueError(f"--on-policy must be a weight >= 0, got {args.on_policy}")
     if args.shard is not None:
         args.shard = _parse_shard(args.shard)
         if args.stage == "eval":
@@ -400,17 +422,37 @@ def _with_extra_data(args, train_ds, val_ds, meta: dict[str, Any]):
     return train_ds, val_ds
 
 
+def _train_run_config(args, preset: DistillPreset, cfg: DataConfig, model_kw: dict) -> RunConfig:
+    """The run config of one training run: the preset's, the model overrides, the CLI's
+    epochs, model size and ``--on-policy`` weight."""
+    config = _run_config(preset, cfg, args.epochs, args.model, **model_kw)
+    if args.on_policy is None:
+        return config
+    return dataclasses.replace(
+        config, train=dataclasses.replace(config.train, on_policy=args.on_policy)
+    )
+
+
 def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> dict[str, Any]:
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
     meta = {"data_dir": str(store.root), "data_config": dataclasses.asdict(cfg)}
     train_ds, val_ds = _with_extra_data(args, train_ds, val_ds, meta)
-    runs = {"main": (out, {"decoder": args.decoder} if args.decoder else {})}
+    decoder = {"decoder": args.decoder, "refine": args.decoder == "insertion"}
+    runs = {"main": (out, decoder if args.decoder else {})}
     if args.ablations:
         for name, kw in ABLATIONS.items():
             runs[name] = (out / "ablations" / name, {**runs["main"][1], **kw})
+    init = StrategicPolicy.load(args.init) if args.init else None
+    if init is not None:
+        meta["init"] = str(args.init)
     summary = {}
     for name, (run_dir, kw) in runs.items():
-        config = _run_config(preset, cfg, args.epochs, args.model, **kw)
+        config = _train_run_config(args, preset, cfg, kw)
+        if init is not None and init.config != config.model:
+            raise ValueError(
+                f"--init {args.init}: its model config differs from this run's "
+                f"({init.config} vs {config.model}); pass the same --model / --decoder"
+            )
         resume = args.resume and (run_dir / "checkpoints").exists()
         if (run_dir / "model").is_dir() and not args.resume:
             print(f"{name}: trained model found in {run_dir}, kept (pass --resume to continue)")
@@ -419,7 +461,8 @@ def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) 
             print(f"training {name} ({config.train.epochs} epochs) -> {run_dir}")
             train(config, train_ds, val_ds, run_dir, seeds=preset.seeds,
                   lrs=(args.lr,) if args.lr is not None else preset.lrs,
-                  resume=resume, progress=not args.no_progress, dataset_meta=meta)  # fmt: skip
+                  resume=resume, progress=not args.no_progress, dataset_meta=meta,
+                  init_params=None if init is None else init.params)  # fmt: skip
             print(f"  {time.perf_counter() - t0:.0f} s")
         policy = StrategicPolicy.load(run_dir)
         stats = evaluate_imitation(policy.model, val_ds if val_ds is not None else train_ds)

@@ -192,17 +192,20 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
 
 
 def test_distill_trains_the_insertion_decoder(tmp_path, smoke_data_dir):
-    """``--decoder insertion`` trains the insertion decoder (recorded in config.json), its
-    policy plans feasible plans and it fine-tunes on reward. The run also
-    takes ``--extra-data`` (here the same dataset again: twice the training instances)."""
+    """The insertion decoder trains (recorded in config.json; the demo and paper presets'
+    default, with the route improvement), its policy plans
+    feasible plans and it fine-tunes on reward. The run also takes ``--extra-data`` (here
+    the same dataset again: twice the training instances). The CLI's ``--on-policy``,
+    ``--decoder append`` and ``--init`` set the run's config (on-policy training itself:
+    tests/test_insertion_decoder.py)."""
     from experiments import distill
 
     run = tmp_path / "ins"
     distill.main(["--preset", "smoke", "--stage", "train", "--out", str(run), "--data-dir",
-                  str(smoke_data_dir), "--epochs", "1", "--decoder", "insertion",
-                  "--extra-data", str(smoke_data_dir), "--no-progress"])  # fmt: skip
+                  str(smoke_data_dir), "--epochs", "1", "--extra-data", str(smoke_data_dir),
+                  "--decoder", "insertion", "--no-progress"])  # fmt: skip
     config = json.loads((run / "config.json").read_text())
-    assert config["run"]["model"]["decoder"] == "insertion"
+    assert config["run"]["model"]["decoder"] == "insertion" and config["run"]["model"]["refine"]
     store = ShardStore.open(smoke_data_dir)
     cfg = DataConfig(**store.config)
     single = distill._split(store, cfg, distill.PRESETS["smoke"].val_houses)[0]
@@ -222,6 +225,22 @@ def test_distill_trains_the_insertion_decoder(tmp_path, smoke_data_dir):
     assert [r["epoch"] for r in rows] == [0, 1] and np.isfinite(rows[1]["train_bc_loss"])
     with pytest.raises(SystemExit):
         distill.main(["--preset", "smoke", "--stage", "train", "--decoder", "prepend"])
+    # --on-policy sets the recipe's weight; --decoder append drops the route improvement;
+    # --init refuses a model of another config before any training
+    args = distill._parse(["--preset", "smoke", "--on-policy", "0.5"])
+    preset, cfg = distill.PRESETS["smoke"], distill.PRESETS["smoke"].data
+    assert distill._train_run_config(args, preset, cfg, {}).train.on_policy == 0.5
+    for name in ("demo", "paper"):  # the real presets default to the insertion decoder
+        real = distill._train_run_config(args, distill.PRESETS[name], cfg, {})
+        assert real.model.decoder == "insertion" and real.model.refine
+    append = distill._train_run_config(args, preset, cfg, {"decoder": "append", "refine": False})
+    assert append.model.decoder == "append" and not append.model.refine
+    with pytest.raises(ValueError, match="--on-policy"):
+        distill.main(["--preset", "smoke", "--stage", "train", "--on-policy", "-1"])
+    with pytest.raises(ValueError, match="--init"):
+        distill.main(["--preset", "smoke", "--stage", "train", "--data-dir", str(smoke_data_dir),
+                      "--out", str(tmp_path / "append"), "--init", str(run), "--decoder",
+                      "append", "--no-progress"])  # fmt: skip
 
 
 def test_distill_rejects_bad_arguments(tmp_path, capsys):

@@ -52,14 +52,16 @@ def run(model, inst, key=None, greedy=True):
     return fn(p, inst, jax.random.key(0) if key is None else key)
 
 
-@pytest.mark.parametrize("closed", [False, True])
-def test_insertion_plans_are_feasible_and_maximal(closed):
+@pytest.mark.parametrize("closed,refine", [(False, False), (True, False), (False, True),
+                                           (True, True)])  # fmt: skip
+def test_insertion_plans_are_feasible_and_maximal(closed, refine):
     """Greedy and sampled insertion plans start at the start, visit each set once, end at a
     closed tour's end node, fit the budget without the gate, and stop only when no node
-    fits; the plan's cost is the cost the decoder tracked."""
+    fits; the plan's cost is the cost the decoder tracked. The same with the route
+    improved after every insertion (``refine``)."""
     batch = stack(instances(closed))
     tight = batch.replace(budget=batch.budget * 0.6)
-    model = untrained(INSERT, 1)
+    model = untrained(dataclasses.replace(INSERT, refine=refine), 1)
     for seed, greedy in ((0, True), (1, False)):
         trace = run(model, tight, jax.random.key(seed), greedy)
         nodes = np.asarray(trace.solution.nodes)
@@ -140,12 +142,13 @@ def test_hand_set_scores_give_nearest_insertion(closed):
         assert got == want, (i, got, want)
 
 
-@pytest.mark.parametrize("closed", [False, True])
-def test_forced_logits_replay_the_decoding(closed):
+@pytest.mark.parametrize("closed,refine", [(False, False), (True, True)])
+def test_forced_logits_replay_the_decoding(closed, refine):
     """Scoring a model's own sampled choices replays its states: the same step
-    distributions as while decoding, the same number of steps (the END included)."""
+    distributions as while decoding, the same number of steps (the END included), with
+    or without the route improvement."""
     batch = stack(instances(closed))
-    model = untrained(INSERT, 4)
+    model = untrained(dataclasses.replace(INSERT, refine=refine), 4)
     trace = run(model, batch, jax.random.key(2), greedy=False)
     tf = forced_logits(model, batch, trace.choices)
     choices = np.asarray(trace.choices)
@@ -231,6 +234,89 @@ def test_insertion_decoder_trains(labelled):
     after = np.asarray(evaluate_fn(states.params, data))[0]
     np.testing.assert_array_equal(after, np.asarray(evaluate_fn(states.params, data))[0])
     assert after[0] / after[2] < before[0] / before[2] - 0.2
+
+
+def test_student_states_are_labelled_by_the_teacher(teacher):
+    """Along a student's own choices, the right answers of a state are the teacher's nodes
+    that state still allows; a state that allows none (its plan took their sets or budget)
+    does not count, and the states are those of the decoding."""
+    inst, nodes = teacher
+    model = untrained(INSERT, 3)
+    trace = run(model, inst, jax.random.key(1), greedy=False)
+    tf = forced_logits(model, inst, trace.choices, teacher_nodes=nodes)
+    plain = forced_logits(model, inst, trace.choices)
+    n = inst.set_id.shape[-1]
+    targets, valid, allowed = (np.asarray(x) for x in (tf.targets, tf.valid, tf.allowed))
+    choices = np.asarray(trace.choices)
+    for i in range(nodes.shape[0]):
+        visits = {int(x) for x in np.asarray(nodes[i])[1:] if x >= 0}
+        taken: set[int] = set()
+        for s in range(choices.shape[1]):
+            live = bool(np.asarray(plain.valid)[i, s])
+            want = {j for j in visits if allowed[i, s, j]} if live else set()
+            assert set(np.flatnonzero(targets[i, s]).tolist()) == want
+            assert valid[i, s] == bool(want) and not targets[i, s, n]
+            assert not want & taken
+            if choices[i, s] >= 0:
+                taken.add(int(choices[i, s]))
+    # the student's states are the decoding's: same distributions where they count
+    probs = np.exp(np.asarray(tf.log_probs))[valid]
+    np.testing.assert_allclose(probs, np.asarray(trace.probs)[valid], atol=1e-5)
+    assert valid.any() and np.isfinite(np.asarray(imitation_stats(tf))).all()
+    append = dataclasses.replace(INSERT, decoder="append")
+    with pytest.raises(ValueError, match="insertion decoder"):
+        forced_logits(untrained(append, 0), inst, trace.choices, teacher_nodes=nodes)
+
+
+def test_on_policy_training(labelled):
+    """Training with the student's own states (on_policy > 0) compiles that term in, and
+    lowers both the teacher-state loss and the loss on the student's greedy states; the
+    append decoder is refused."""
+    from bfsop_jax.training import RunConfig, train
+    from bfsop_jax.training.bc import _student_forcing
+
+    data = {k: jnp.asarray(v) for k, v in labelled.items()}
+    recipe = TrainConfig(epochs=4, batch_size=8, decay_every=2, on_policy=1.0)
+    graphdef, states = init_states(INSERT, recipe, seeds=[0], lrs=[3e-3])
+    epoch = make_train_epoch(graphdef, recipe, 16)
+    evaluate_fn = make_evaluate(graphdef, 8, 16)
+
+    def own_loss(params):
+        params = jax.tree_util.tree_map(lambda x: x[0], params)
+        stats = imitation_stats(_student_forcing(graphdef, params, data, None, jax.random.key(3)))
+        return float(stats[0] / stats[2])
+
+    before = np.asarray(evaluate_fn(states.params, data))[0]
+    own_before = own_loss(states.params)
+    keys = jnp.stack([jax.random.key(0)])
+    for _ in range(10):
+        states, _ = epoch(states, data, keys)
+    after = np.asarray(evaluate_fn(states.params, data))[0]
+    own_after = own_loss(states.params)
+    assert after[0] / after[2] < before[0] / before[2] - 0.15
+    assert own_after < own_before - 0.2
+    append = RunConfig(model=dataclasses.replace(INSERT, decoder="append"), train=recipe)
+    with pytest.raises(ValueError, match="insertion decoder"):
+        train(append, labelled, None, "unused-dir", progress=False)
+    with pytest.raises(ValueError, match="on_policy"):
+        TrainConfig(on_policy=-1.0)
+
+
+def test_refined_routes_free_budget(teacher):
+    """With the route improved after every insertion, greedy plans of the same network
+    are never costlier for the same sets and, on these tight budgets, take more reward in
+    all (the freed budget goes to more sets); the append decoder ignores the flag."""
+    inst, _ = teacher
+    inst = inst.replace(budget=inst.budget * 0.7)
+    model = untrained(INSERT, 5)
+    refined = untrained(dataclasses.replace(INSERT, refine=True), 5)
+    plain = run(model, inst).solution
+    better = run(refined, inst).solution
+    assert float(jnp.sum(better.reward)) >= float(jnp.sum(plain.reward))
+    append = dataclasses.replace(INSERT, decoder="append")
+    a = run(untrained(append, 5), inst).solution
+    b = run(untrained(dataclasses.replace(append, refine=True), 5), inst).solution
+    np.testing.assert_array_equal(np.asarray(a.nodes), np.asarray(b.nodes))
 
 
 def test_config_names_a_bad_decoder():

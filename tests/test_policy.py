@@ -261,7 +261,7 @@ def test_shipped_policies_plan_map_instances(name):
     (N = 76, K = 16) feasibly and beat an empty plan."""
     shipped = StrategicPolicy.load(name)
     assert (shipped.num_nodes, shipped.num_sets) == (76, 16)
-    assert shipped.config.decoder == "insertion"
+    assert shipped.config.decoder == "insertion" and shipped.config.refine
     if name == "demo":
         assert StrategicPolicy.load().config == shipped.config  # the default model
     else:  # the paper model: 6 encoder layers, 8 heads, d = 128, ff 512, insertion decoder

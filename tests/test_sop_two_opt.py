@@ -15,10 +15,12 @@ from bfsop_jax.sop import (
     evaluate,
     insertion_fill,
     plan_length,
+    refine_route,
     two_opt,
 )
 from bfsop_jax.sop import vns as V
 from bfsop_jax.sop.io import random_instance
+from bfsop_jax.sop.two_opt import plan_route
 
 SETS, VIEWS = 6, 3  # fixed shapes: one compilation for all examples
 
@@ -80,6 +82,37 @@ def test_two_opt_never_longer_and_keeps_the_sets(seed, closed, masked, scale):
     kept = _inner(inst, gated.nodes)
     assert kept == _inner(inst, out.nodes)[: len(kept)]  # a prefix of the plan
     assert abs(float(gated.reward) - reward_g) <= 1e-5
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.booleans(), st.integers(0, 2), st.integers(0, 3),
+       st.integers(0, 2))  # fmt: skip
+def test_refine_route_never_longer_and_keeps_the_sets(seed, closed, masked, reversals, sweeps):
+    """The insertion decoder's cheap route improvement: same layout and sets, a cost that
+    never rises, nothing at all when asked for no step; after a sweep no visited node has
+    a cheaper node of its set between its neighbours."""
+    inst = random_instance(seed, SETS, VIEWS, closed=closed, masked_sets=masked)
+    plan = _random_plan(inst, np.random.default_rng(seed))
+    route, m = plan_route(inst, plan.nodes)
+    out = np.asarray(jax.jit(refine_route, static_argnums=(3, 4))(inst, route, m, reversals,
+                                                                   sweeps))  # fmt: skip
+    route = np.asarray(route)
+    n = inst.num_nodes
+    assert out[0] == route[0] and (out[int(m) + 1 :] == route[int(m) + 1 :]).all()
+    sets = lambda r: sorted(inst.set_id[r[1 : int(m) + 1]].tolist())  # noqa: E731
+    assert sets(out) == sets(route)
+    ext = np.full((n + 1, n + 1), np.inf)
+    ext[:n, :n] = inst.cost
+    ext[:, n] = 0.0
+    cost = lambda r: float(ext[r[:-1], r[1:]].sum())  # noqa: E731
+    assert cost(out) <= cost(route) + 1e-4
+    if reversals == sweeps == 0:
+        np.testing.assert_array_equal(out, route)
+    if sweeps:  # the even positions moved last: none of them can do better
+        for p in range(2, int(m) + 1, 2):
+            same = np.flatnonzero(inst.set_id == inst.set_id[out[p]])
+            detour = ext[out[p - 1], same] + ext[same, out[p + 1]]
+            assert ext[out[p - 1], out[p]] + ext[out[p], out[p + 1]] <= detour.min() + 1e-4
 
 
 def test_intra_set_exchange_alone_is_the_exact_dp():

@@ -39,7 +39,7 @@ from bfsop_jax.sop.rules import (
     plan_value,
     prefix_states,
 )
-from bfsop_jax.sop.two_opt import insert_after, insertion_costs, plan_route
+from bfsop_jax.sop.two_opt import insert_after, insertion_costs, plan_route, refine_route
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 
 __all__ = [
@@ -331,16 +331,28 @@ def _insertion_start(instance: SOPInstance, steps: int):
     return route, m, blocked_sets(instance), jnp.zeros((b,), bool), jnp.asarray(instance.start)
 
 
-def _insert(instance: SOPInstance, carry, after: jax.Array, node: jax.Array, stop: jax.Array):
+def _insert(instance: SOPInstance, carry, after: jax.Array, node: jax.Array, stop: jax.Array,
+            refine: bool = False):  # fmt: skip
     """Put ``node`` [B] into each route right after position ``after[node]`` (rows that
-    stop keep theirs); returns the next carry."""
+    stop keep theirs); with ``refine``, then improve the route
+    (:func:`~bfsop_jax.sop.two_opt.refine_route`). Returns the next carry; its last node
+    is the node of ``node``'s set on the route."""
     route, m, visited, _, last = carry
     j = jnp.clip(node, 0)
     p = jnp.take_along_axis(after, j[:, None], axis=1)
-    route = jnp.where(stop[:, None], route, insert_after(route, p, j[:, None])).astype(jnp.int32)
-    sets = jnp.take_along_axis(jnp.asarray(instance.set_id), j[:, None], axis=1)[:, 0]
+    grown = insert_after(route, p, j[:, None]).astype(jnp.int32)
+    m = m + (~stop)
+    set_id = jnp.asarray(instance.set_id)
+    sets = jnp.take_along_axis(set_id, j[:, None], axis=1)[:, 0]
+    if refine:
+        grown = jax.vmap(refine_route)(instance, grown, m)
+        on_route = jnp.take_along_axis(set_id, jnp.clip(grown, 0, set_id.shape[-1] - 1), axis=1)
+        slot = jnp.arange(grown.shape[-1])
+        here = (on_route == sets[:, None]) & (slot >= 1) & (slot <= m[:, None])
+        j = jnp.take_along_axis(grown, jnp.argmax(here, axis=1)[:, None], axis=1)[:, 0]
+    route = jnp.where(stop[:, None], route, grown)
     visited = visited | (jax.nn.one_hot(sets, visited.shape[-1], dtype=bool) & ~stop[:, None])
-    return route, m + (~stop), visited, stop, jnp.where(stop, last, j)
+    return route, m, visited, stop, jnp.where(stop, last, j)
 
 
 def _score_insertion_states(model, instance, features, cache, visited, delta, travelled, last,
@@ -379,7 +391,8 @@ def _decode_insertion(model, instance, features, cache, keys, restrict_first, ch
             model, instance, features, cache, carry, index, restrict_first
         )
         node, stop, probs = choose(scores, step_key, carry[3])
-        return _insert(instance, carry, after, node, stop), (node, probs, allowed)
+        carry = _insert(instance, carry, after, node, stop, model.config.refine)
+        return carry, (node, probs, allowed)
 
     carry0 = _insertion_start(instance, steps)
     (route, m, _, _, _), (chosen, probs, allowed) = jax.lax.scan(
@@ -402,6 +415,7 @@ def forced_logits(
     instance: SOPInstance,
     choices: jax.Array,
     features: NodeFeatures | None = None,
+    teacher_nodes: jax.Array | None = None,
 ) -> TeacherForcing:
     """Decoder log-probabilities along a given sequence of choices (e.g. sampled plans'
     :attr:`DecodeTrace.choices`, for reward fine-tuning).
@@ -411,6 +425,11 @@ def forced_logits(
         instance: batch of B instances.
         choices: [B, S] int32, the node chosen at each step, -1 for END and after.
         features: precomputed :func:`node_features` (e.g. a coordinate symmetry).
+        teacher_nodes: insertion decoder only: [B, T] teacher plans (T = K + 1, start
+            first, -1 padding) that label the states the choices lead to (the student's
+            own states, DAgger-style): every teacher node the state's mask still allows is
+            a right answer (``targets``); a state where none is (the plan has taken their
+            sets or their budget) is not valid. None: the choices are the targets.
 
     Returns:
         :class:`TeacherForcing` with ``target`` the choice (N for END); a step is valid
@@ -421,6 +440,8 @@ def forced_logits(
     b, steps = choices.shape
     n = instance.set_id.shape[-1]
     choices = jnp.asarray(choices, jnp.int32)
+    if teacher_nodes is not None and model.config.decoder != "insertion":
+        raise ValueError("forced_logits: teacher_nodes labels need the insertion decoder")
     if model.config.decoder == "append":
         nodes = jnp.concatenate([jnp.asarray(instance.start)[:, None], choices], axis=1)
         return teacher_forced_logits(model, instance, nodes, features)
@@ -431,12 +452,22 @@ def forced_logits(
         delta, after, travelled = jax.vmap(insertion_costs)(instance, carry[0], carry[1])
         stop = carry[3] | (node < 0)
         state = (carry[2], delta, travelled, carry[4], carry[3])
-        return _insert(instance, carry, after, node, stop), state
+        return _insert(instance, carry, after, node, stop, model.config.refine), state
 
     _, states = jax.lax.scan(replay, _insertion_start(instance, steps), choices.T)
     visited, delta, travelled, last, done = (jnp.swapaxes(x, 0, 1) for x in states)
     target = jnp.where(choices >= 0, choices, n).astype(jnp.int32)
     chosen = jax.nn.one_hot(target, n + 1, dtype=bool)
+    if teacher_nodes is not None:
+        scores, allowed = _score_insertion_states(
+            model, instance, features, cache, visited, delta, travelled, last, lambda a: a
+        )
+        targets = allowed & _teacher_members(instance, teacher_nodes)[:, None]  # [B, S, N+1]
+        valid = ~done & jnp.any(targets, axis=-1)
+        return TeacherForcing(
+            log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=valid,
+            allowed=allowed, targets=targets & valid[..., None],
+        )  # fmt: skip
     scores, allowed = _score_insertion_states(
         model, instance, features, cache, visited, delta, travelled, last, lambda a: a | chosen
     )
@@ -444,6 +475,16 @@ def forced_logits(
         log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=~done,
         allowed=allowed,
     )  # fmt: skip
+
+
+def _teacher_members(instance: SOPInstance, teacher_nodes: jax.Array) -> jax.Array:
+    """[B, N+1] bool: the nodes a teacher plan visits for a set (not its start or the end
+    node of a closed tour); END (index N) is never one."""
+    n = instance.set_id.shape[-1]
+    pos = jnp.arange(teacher_nodes.shape[-1])
+    visit = (teacher_nodes >= 0) & (pos > 0) & (teacher_nodes != instance.end[:, None])
+    hits = visit[..., None] & (teacher_nodes[..., None] == jnp.arange(n + 1))
+    return jnp.any(hits, axis=1)
 
 
 def greedy_decode(

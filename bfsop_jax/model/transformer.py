@@ -68,6 +68,10 @@ class ModelConfig:
     # "append": each step appends a node to the path (the paper's pointer decoding);
     # "insertion": each step puts the chosen node where it adds the least cost
     decoder: str = "append"
+    # insertion decoder: after every insertion the route is improved (two 2-opt reversals,
+    # then each set's cheapest node between its neighbours; bfsop_jax.sop.refine_route),
+    # so the next choices see the budget that frees (the append decoder ignores it)
+    refine: bool = False
 
     def __post_init__(self) -> None:
         for name in ("d_model", "n_layers", "n_heads", "d_ff", "step_hidden"):

@@ -40,6 +40,7 @@ __all__ = [
     "insertion_costs",
     "insertion_fill",
     "plan_route",
+    "refine_route",
 ]
 
 
@@ -151,10 +152,71 @@ def _reversal_costs(cx: jax.Array, route: jax.Array, m: jax.Array) -> jax.Array:
     return jnp.where(valid, total, jnp.inf)
 
 
+def _best_reversal(
+    cx: jax.Array, route: jax.Array, m: jax.Array, cost: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """The route after its best segment reversal, and whether that lowers ``cost`` (the
+    route's cost) by more than a relative 1e-6."""
+    t1 = route.shape[0]
+    scores = _reversal_costs(cx, route, m)
+    flat = jnp.argmin(scores)
+    i, k = flat // t1, flat % t1
+    tol = 1e-6 * jnp.maximum(1.0, jnp.abs(cost))
+    pos = jnp.arange(t1)
+    inside = (pos >= i) & (pos <= k)
+    flipped = jnp.where(inside, route[jnp.clip(i + k - pos, 0, t1 - 1)], route)
+    return flipped, scores.reshape(-1)[flat] < cost - tol
+
+
+def refine_route(
+    instance: SOPInstance, route: jax.Array, m: jax.Array, reversals: int = 2, sweeps: int = 2
+) -> jax.Array:
+    """A cheap improvement of one route (single instance; what the insertion decoder does
+    after every insertion, so the budget it frees is there for the next choices).
+
+    First up to ``reversals`` best segment reversals (2-opt), each kept only when it lowers
+    the cost; then ``sweeps`` passes in which every visited position takes the node of its
+    set that is cheapest between its two neighbours (odd positions, then even ones, so no
+    two changed positions are adjacent). The visited sets stay the same and the cost never
+    increases; the exact intra-set DP of :func:`two_opt` is left out (it costs a scan over
+    the route per call).
+
+    Args:
+        instance: one instance (N nodes).
+        route: [T+1] int32, :func:`plan_route` layout.
+        m: [] int32 visited nodes on the route.
+        reversals, sweeps: static counts (0 skips that part).
+
+    Returns:
+        [T+1] int32, the improved route (same layout and m).
+    """
+    cx = _extended_cost(instance)
+    n = instance.cost.shape[-1]
+    t1 = route.shape[0]
+    pos = jnp.arange(t1)
+
+    def reverse(_, route):
+        flipped, improves = _best_reversal(cx, route, m, _route_cost(cx, route))
+        return jnp.where(improves, flipped, route)
+
+    route = jax.lax.fori_loop(0, reversals, reverse, route)
+    same_set = instance.set_id[None, :] == instance.set_id[jnp.clip(route, 0, n - 1)][:, None]
+    for _ in range(sweeps):
+        for parity in (1, 0):
+            prev = route[jnp.clip(pos - 1, 0, t1 - 1)]
+            nxt = route[jnp.clip(pos + 1, 0, t1 - 1)]
+            detour = jnp.where(same_set, cx[prev, :n] + cx[:n, nxt].T, jnp.inf)  # [T+1, N]
+            best = jnp.argmin(detour, axis=1).astype(route.dtype)
+            now = cx[prev, route] + cx[route, nxt]
+            move = (pos >= 1) & (pos <= m) & (pos % 2 == parity)
+            move = move & (jnp.min(detour, axis=1) < now)
+            route = jnp.where(move, best, route)
+    return route
+
+
 def _two_opt_single(instance: SOPInstance, solution: Solution, max_iters: int) -> Solution:
     cx = _extended_cost(instance)
     route, m = _route(instance, solution.nodes)
-    t1 = route.shape[0]
     cost0 = _route_cost(cx, route)
     # intra-set exchange on the given order first
     first = _best_nodes(instance, cx, route, m)
@@ -167,16 +229,10 @@ def _two_opt_single(instance: SOPInstance, solution: Solution, max_iters: int) -
 
     def body(state):
         route, cost, it, _ = state
-        scores = _reversal_costs(cx, route, m)
-        flat = jnp.argmin(scores)
-        i, k = flat // t1, flat % t1
-        tol = 1e-6 * jnp.maximum(1.0, jnp.abs(cost))
-        pos = jnp.arange(t1)
-        inside = (pos >= i) & (pos <= k)
-        flipped = jnp.where(inside, route[jnp.clip(i + k - pos, 0, t1 - 1)], route)
+        flipped, improves = _best_reversal(cx, route, m, cost)
         better = _best_nodes(instance, cx, flipped, m)
         new_cost = _route_cost(cx, better)
-        take = (scores.reshape(-1)[flat] < cost - tol) & (new_cost < cost)
+        take = improves & (new_cost < cost)
         return (
             jnp.where(take, better, route),
             jnp.where(take, new_cost, cost),

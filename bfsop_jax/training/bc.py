@@ -43,7 +43,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from bfsop_jax import checkpoint as ckpt
 from bfsop_jax.data.schema import DATASET_KEYS, check_records, make_records
-from bfsop_jax.model.decode import teacher_forced_logits
+from bfsop_jax.model.decode import decode, forced_logits, teacher_forced_logits
 from bfsop_jax.model.features import node_features, random_symmetry
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.parallel import DATA_AXIS, barrier, mesh_size, place, to_host
@@ -186,6 +186,7 @@ class Hyper:
     warmup_epochs: Any  # [] float32: linear warm-up length (0: none)
     label_smoothing: Any  # [] float32: uniform-target weight over the allowed entries
     augment: Any  # [] bool: show instances under random coordinate symmetries
+    on_policy: Any  # [] float32: weight of the loss on the student's own states
 
     @classmethod
     def of(cls, replica: Replica) -> Hyper:
@@ -198,6 +199,7 @@ class Hyper:
             warmup_epochs=f32(replica.warmup_epochs),
             label_smoothing=f32(replica.label_smoothing),
             augment=jnp.bool_(replica.augment),
+            on_policy=f32(replica.on_policy),
         )
 
 
@@ -310,6 +312,20 @@ def _teacher_forcing(
     return teacher_forced_logits(model, inst, batch["teacher_nodes"], features, order_key)
 
 
+def _student_forcing(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array],
+                     features, key: jax.Array):  # fmt: skip
+    """The insertion decoder on its own states: half the minibatch's plans greedy, half
+    sampled (temperature 1) by the current parameters (no gradient through the plans),
+    each state labelled by the teacher's nodes it still allows (DAgger at the level of
+    decoding steps, with the teacher's plan as the oracle)."""
+    inst = _instances(batch)
+    rows = inst.set_id.shape[0]
+    frozen = nnx.merge(graphdef, jax.lax.stop_gradient(params))
+    trace = decode(frozen, inst, key, greedy=jnp.arange(rows) % 2 == 0, features=features)
+    model = nnx.merge(graphdef, params)
+    return forced_logits(model, inst, trace.choices, features, teacher_nodes=batch["teacher_nodes"])
+
+
 def _batch_stats(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array], weight=None):
     """Summed imitation stats [3] of a minibatch (see ``imitation_stats``)."""
     return imitation_stats(_teacher_forcing(graphdef, params, batch), weight)
@@ -335,6 +351,7 @@ def make_train_epoch(
     *,
     augment: bool | None = None,
     smoothing: bool | None = None,
+    on_policy: bool | None = None,
     mesh: Mesh | None = None,
     shard: str = "replicas",
 ) -> Callable[[TrainState, dict[str, jax.Array], jax.Array], tuple[TrainState, jax.Array]]:
@@ -347,11 +364,13 @@ def make_train_epoch(
     every recipe number lives in ``states.hyper``, so replicas that differ only in them, or
     runs that differ in epochs, share it.
 
-    ``augment`` / ``smoothing``: compile the symmetry augmentation / the label-smoothing
-    term in (default: the recipe's setting); each replica's ``hyper`` then says whether it
-    augments and how much it smooths. ``mesh`` with ``shard="batch"``: every minibatch is
-    split over the mesh's ``data`` axis (``shard="replicas"`` needs nothing inside the
-    program: the placement of ``states`` decides).
+    ``augment`` / ``smoothing`` / ``on_policy``: compile the symmetry augmentation / the
+    label-smoothing term / the loss on the student's own states (insertion decoder) in
+    (default: the recipe's setting); each replica's ``hyper`` then says whether it
+    augments, how much it smooths and what weight its own states get. ``mesh`` with
+    ``shard="batch"``: every minibatch is split over the mesh's ``data`` axis
+    (``shard="replicas"`` needs nothing inside the program: the placement of ``states``
+    decides).
     """
     batch_size = min(config.batch_size, num_instances)
     return functools.partial(
@@ -361,6 +380,7 @@ def make_train_epoch(
         num_instances=num_instances,
         augment=config.augment if augment is None else bool(augment),
         smoothing=config.label_smoothing > 0 if smoothing is None else bool(smoothing),
+        on_policy=config.on_policy > 0 if on_policy is None else bool(on_policy),
         batch_mesh=mesh if shard == "batch" else None,
     )
 
@@ -368,7 +388,8 @@ def make_train_epoch(
 @functools.partial(
     jax.jit,
     static_argnames=(
-        "graphdef", "batch_size", "num_instances", "augment", "smoothing", "batch_mesh"
+        "graphdef", "batch_size", "num_instances", "augment", "smoothing", "on_policy",
+        "batch_mesh",
     ),
 )  # fmt: skip
 def _train_epoch(
@@ -381,6 +402,7 @@ def _train_epoch(
     num_instances: int,
     augment: bool,
     smoothing: bool,
+    on_policy: bool,
     batch_mesh: Mesh | None,
 ):
     TRACE_COUNTS["train_epoch"] += 1
@@ -392,11 +414,20 @@ def _train_epoch(
             graphdef, params, batch, key=key, augment=hyper.augment if augment else None
         )
         stats = imitation_stats(tf)
-        total = stats[0]
+        total, steps = stats[0], stats[2]
         if smoothing:
             eps = hyper.label_smoothing
             total = (1.0 - eps) * total + eps * _smoothing_nll(tf)
-        return total / jnp.maximum(stats[2], 1.0), stats
+        if on_policy:  # the student's own states join with weight hyper.on_policy
+            features = None
+            if augment:
+                features = random_symmetry(node_features(_instances(batch)), key, hyper.augment)
+            own = imitation_stats(
+                _student_forcing(graphdef, params, batch, features, jax.random.fold_in(key, 2))
+            )
+            total = total + hyper.on_policy * own[0]
+            steps = steps + hyper.on_policy * own[2]
+        return total / jnp.maximum(steps, 1.0), stats
 
     def epoch(state: TrainState, key: jax.Array):
         shuffle, sym = jax.random.split(key)
@@ -574,6 +605,8 @@ def train(
         raise ValueError(f"config must be a RunConfig, got {type(config).__name__}")
     tcfg = config.train
     members = _replica_list(tcfg, seeds, lrs, replicas)
+    if any(r.on_policy > 0 for r in members) and config.model.decoder != "insertion":
+        raise ValueError("on_policy training needs the insertion decoder (model.decoder)")
     if max_epochs_this_call is not None and max_epochs_this_call < 1:
         raise ValueError(f"max_epochs_this_call must be >= 1, got {max_epochs_this_call}")
     run_dir = Path(out_dir)
@@ -615,7 +648,8 @@ def train(
     val_data = place(_check_dataset(val_ds), mesh, leading=False) if val_ds is not None else None
     train_epoch = make_train_epoch(
         graphdef, tcfg, num_train, augment=any(r.augment for r in members),
-        smoothing=any(r.label_smoothing > 0 for r in members), mesh=mesh, shard=shard,
+        smoothing=any(r.label_smoothing > 0 for r in members),
+        on_policy=any(r.on_policy > 0 for r in members), mesh=mesh, shard=shard,
     )  # fmt: skip
     evaluate = (
         make_evaluate(graphdef, tcfg.batch_size, info["val"]["instances"]) if val_data else None

@@ -46,6 +46,9 @@ class TrainConfig:
     augment: bool = False  # show each instance under a random coordinate symmetry
     warmup_epochs: float = 0.0  # linear learning-rate warm-up over this many epochs
     label_smoothing: float = 0.0  # weight of the uniform target over the allowed entries
+    # insertion decoder: weight of the loss on the student's own states (its greedy and
+    # sampled plans of each minibatch, labelled by the teacher's nodes still allowed)
+    on_policy: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.epochs, int) or self.epochs < 1:
@@ -66,6 +69,8 @@ class TrainConfig:
             raise ValueError(
                 f"TrainConfig.label_smoothing must be in [0, 1), got {self.label_smoothing}"
             )
+        if not self.on_policy >= 0:
+            raise ValueError(f"TrainConfig.on_policy must be >= 0, got {self.on_policy}")
         if self.keep_checkpoints < 1:
             raise ValueError(
                 f"TrainConfig.keep_checkpoints must be >= 1, got {self.keep_checkpoints}"
@@ -105,6 +110,7 @@ class Replica:
     warmup_epochs: float = 0.0
     label_smoothing: float = 0.0
     augment: bool = False
+    on_policy: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, int) or isinstance(self.seed, bool):
@@ -118,6 +124,7 @@ class Replica:
             decay_every=self.decay_every,
             warmup_epochs=self.warmup_epochs,
             label_smoothing=self.label_smoothing,
+            on_policy=self.on_policy,
         )
 
     @classmethod
@@ -130,6 +137,7 @@ class Replica:
             "warmup_epochs": recipe.warmup_epochs,
             "label_smoothing": recipe.label_smoothing,
             "augment": recipe.augment,
+            "on_policy": recipe.on_policy,
         }
         unknown = set(overrides) - set(values)
         if unknown:

@@ -56,6 +56,7 @@ REPLICA_KEYS: dict[str, tuple[type, str]] = {
     "warmup": (float, "warmup_epochs"),
     "label_smoothing": (float, "label_smoothing"),
     "augment": (bool, "augment"),
+    "on_policy": (float, "on_policy"),
 }
 # grid key -> (type, "model" | "train", field)
 GROUP_KEYS: dict[str, tuple[type, str, str]] = {
@@ -68,6 +69,7 @@ GROUP_KEYS: dict[str, tuple[type, str, str]] = {
     "budget_mask": (bool, "model", "budget_mask"),
     "step_features": (bool, "model", "step_features"),
     "decoder": (str, "model", "decoder"),  # append | insertion
+    "refine": (bool, "model", "refine"),  # insertion: improve the route after each insertion
     "batch_size": (int, "train", "batch_size"),
     "epochs": (int, "train", "epochs"),
 }

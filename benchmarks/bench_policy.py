@@ -1,0 +1,108 @@
+"""Where a single-instance plan of the Strategic Transformer spends its time.
+
+``python -m benchmarks.bench_policy --model demo --houses 2`` poses held-out navigation
+tasks (exploration runs in held-out houses, as the distillation's evaluation does), then
+times one instance at a time, side by side in one run:
+
+* ``StrategicPolicy.plan`` as users call it (greedy decoding + 2-opt + budget gate);
+* its parts: the host-side checks and padding (``validate``, pad, ``device_put``), and
+  the jitted program alone on an already padded instance;
+* the program with the jit cache keyed the way it was before 2026-12-03 (the model's graph
+  definition hashed on every call);
+* the same model without the route improvement after each insertion (``refine``), and
+  without the 2-opt.
+
+Prints a Markdown table (medians over instances, milliseconds) and the reward of each
+variant, so a speed-up that changed the plans would show.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import platform
+import time
+
+import jax
+import numpy as np
+
+from bfsop_jax import policy as policy_module
+from bfsop_jax.config import EVAL_SEED_START
+from bfsop_jax.data.generate import DataConfig, pose_tasks
+from bfsop_jax.policy import StrategicPolicy
+
+
+def _median_ms(fn, items) -> float:
+    jax.block_until_ready(fn(items[0]))  # compile
+    times = []
+    for item in items:
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(item))
+        times.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(times))
+
+
+def _program(policy: StrategicPolicy, static_graph, two_opt: bool = True):
+    """The jitted plan program alone, on a padded instance (``static_graph``: its cache key)."""
+
+    def run(padded):
+        return policy_module._plan_jit(
+            policy._params, padded, policy_module._default_key(), np.float32(1.0),
+            graphdef=static_graph(), use_two_opt=two_opt, augment=False, best_of=1,
+            fill=False, multi_start=False, single=True,
+        ).reward  # fmt: skip
+
+    return run
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default="demo", help="shipped model name or run directory")
+    ap.add_argument("--preset", default="demo", help="preset of the posed tasks")
+    ap.add_argument("--houses", type=int, default=2, help="held-out houses to pose tasks in")
+    ap.add_argument("--tasks", type=int, default=24, help="tasks per house")
+    args = ap.parse_args(argv)
+    if args.houses < 1 or args.tasks < 1:
+        raise SystemExit("--houses and --tasks must be >= 1")
+
+    cfg = DataConfig(preset=args.preset, tasks_per_house=args.tasks)
+    seeds = np.arange(EVAL_SEED_START, EVAL_SEED_START + args.houses)
+    instances, _ = pose_tasks(seeds, cfg, progress=False)
+    items = [
+        jax.tree_util.tree_map(lambda x, i=i: np.asarray(x)[i], instances)
+        for i in range(int(instances.set_id.shape[0]))
+    ]
+    policy = StrategicPolicy.load(args.model)
+    model = StrategicPolicy.load(args.model).model  # a copy whose config drops refine
+    model.config = dataclasses.replace(model.config, refine=False)
+    unrefined = StrategicPolicy(model, policy.num_nodes, policy.num_sets)
+
+    padded = {id(x): policy._prepare(x)[0] for x in items}
+    once = policy._static_graph
+    program = _program(policy, lambda: once)
+    program_rehashed = _program(policy, lambda: policy_module._HashedOnce(policy._graphdef))
+    rows = [
+        ("plan (as called)", lambda x: policy.plan(x).reward),
+        ("  host: validate, pad, device_put", lambda x: policy._prepare(x)[0]),
+        ("  jitted program", lambda x: program(padded[id(x)])),
+        ("  jitted program, graph hashed per call (before)",
+         lambda x: program_rehashed(padded[id(x)])),
+        ("plan without the 2-opt", lambda x: policy.plan(x, two_opt=False).reward),
+        ("plan without refine", lambda x: unrefined.plan(x).reward),
+    ]  # fmt: skip
+    rows = [(name, _median_ms(fn, items)) for name, fn in rows]
+    reward = sum(float(policy.plan(x).reward) for x in items)
+    reward_plain = sum(float(unrefined.plan(x).reward) for x in items)
+    config = policy.config
+    machine = f"{platform.machine()}, {jax.default_backend()}, {time.strftime('%Y-%m-%d')}"
+    print(f"{len(items)} instances from held-out {args.preset} houses {seeds[0]}..{seeds[-1]}; "
+          f"model {args.model} ({config.decoder} decoder, refine={config.refine})")  # fmt: skip
+    print(machine)
+    print("\n| step | median ms / instance |\n|---|---|")
+    for name, ms in rows:
+        print(f"| {name} | {ms:.2f} |")
+    print(f"\nsummed reward: with refine {reward:.2f}, without {reward_plain:.2f}")
+
+
+if __name__ == "__main__":
+    main()
