@@ -458,23 +458,19 @@ def forced_logits(
     visited, delta, travelled, last, done = (jnp.swapaxes(x, 0, 1) for x in states)
     target = jnp.where(choices >= 0, choices, n).astype(jnp.int32)
     chosen = jax.nn.one_hot(target, n + 1, dtype=bool)
-    if teacher_nodes is not None:
-        scores, allowed = _score_insertion_states(
-            model, instance, features, cache, visited, delta, travelled, last, lambda a: a
-        )
-        targets = allowed & _teacher_members(instance, teacher_nodes)[:, None]  # [B, S, N+1]
-        valid = ~done & jnp.any(targets, axis=-1)
-        return TeacherForcing(
-            log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=valid,
-            allowed=allowed, targets=targets & valid[..., None],
-        )  # fmt: skip
     scores, allowed = _score_insertion_states(
-        model, instance, features, cache, visited, delta, travelled, last, lambda a: a | chosen
-    )
-    return TeacherForcing(
+        model, instance, features, cache, visited, delta, travelled, last,
+        (lambda a: a | chosen) if teacher_nodes is None else (lambda a: a),
+    )  # fmt: skip
+    tf = TeacherForcing(
         log_probs=jax.nn.log_softmax(scores, axis=-1), target=target, valid=~done,
         allowed=allowed,
     )  # fmt: skip
+    if teacher_nodes is None:
+        return tf
+    targets = allowed & _teacher_members(instance, teacher_nodes)[:, None]  # [B, S, N+1]
+    valid = ~done & jnp.any(targets, axis=-1)
+    return tf.replace(valid=valid, targets=targets & valid[..., None])
 
 
 def _teacher_members(instance: SOPInstance, teacher_nodes: jax.Array) -> jax.Array:

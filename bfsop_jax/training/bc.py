@@ -295,21 +295,21 @@ def _teacher_forcing(
     params: Any,
     batch: Mapping[str, jax.Array],
     key: jax.Array | None = None,
-    augment: Any = True,
+    features: Any = None,
 ):
-    """Teacher-forced decoder outputs on a minibatch; with ``key`` (and ``augment`` true),
-    every instance is seen under a random one of the 8 coordinate symmetries, and an
-    insertion decoder sees the teacher's nodes enter in a random order drawn from ``key``
-    (without ``key``: a fixed order). ``augment=None`` leaves the symmetries out of the
-    program."""
+    """Teacher-forced decoder outputs on a minibatch, with its ``features`` (e.g. from
+    :func:`_augmented`; None: the plain ones); with ``key`` an insertion decoder sees the
+    teacher's nodes enter in a random order drawn from it (without: a fixed order)."""
     model = nnx.merge(graphdef, params)
-    inst = _instances(batch)
-    features = order_key = None
-    if key is not None:
-        order_key = jax.random.fold_in(key, 1)
-        if augment is not None:
-            features = random_symmetry(node_features(inst), key, augment)
-    return teacher_forced_logits(model, inst, batch["teacher_nodes"], features, order_key)
+    order_key = None if key is None else jax.random.fold_in(key, 1)
+    return teacher_forced_logits(model, _instances(batch), batch["teacher_nodes"], features,
+                                 order_key)  # fmt: skip
+
+
+def _augmented(batch: Mapping[str, jax.Array], key: jax.Array, augment: Any):
+    """Every instance's features under a random one of the 8 coordinate symmetries drawn
+    from ``key`` (``augment`` traced false: the identity)."""
+    return random_symmetry(node_features(_instances(batch)), key, augment)
 
 
 def _student_forcing(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array],
@@ -409,19 +409,16 @@ def _train_epoch(
     num_batches = num_instances // batch_size
 
     def loss(params, batch, key, hyper: Hyper):
-        # the key also draws an insertion decoder's order of entry, so it is always given
-        tf = _teacher_forcing(
-            graphdef, params, batch, key=key, augment=hyper.augment if augment else None
-        )
+        # one symmetry per instance for both losses (left out of the program unless some
+        # replica augments); the key also draws an insertion decoder's order of entry
+        features = _augmented(batch, key, hyper.augment) if augment else None
+        tf = _teacher_forcing(graphdef, params, batch, key=key, features=features)
         stats = imitation_stats(tf)
         total, steps = stats[0], stats[2]
         if smoothing:
             eps = hyper.label_smoothing
             total = (1.0 - eps) * total + eps * _smoothing_nll(tf)
         if on_policy:  # the student's own states join with weight hyper.on_policy
-            features = None
-            if augment:
-                features = random_symmetry(node_features(_instances(batch)), key, hyper.augment)
             own = imitation_stats(
                 _student_forcing(graphdef, params, batch, features, jax.random.fold_in(key, 2))
             )
