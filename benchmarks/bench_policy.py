@@ -10,7 +10,11 @@ times one instance at a time, side by side in one run:
 * the program with the jit cache keyed the way it was before 2026-12-03 (the model's graph
   definition hashed on every call);
 * the same model without the route improvement after each insertion (``refine``), and
-  without the 2-opt.
+  without the 2-opt;
+* the inference options that plan several candidates (best of 4 + fill, multi-start over
+  the top 8 first sets + fill, multi-start over every first set + fill);
+* every row again with ``jnp.argmin``/``jnp.argmax`` in place of :mod:`bfsop_jax.ops`'
+  (what the planner used before 2026-12-03; XLA:CPU's variadic arg-reductions are slow).
 
 Prints a Markdown table (medians over instances, milliseconds) and the reward of each
 variant, so a speed-up that changed the plans would show.
@@ -24,12 +28,21 @@ import platform
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
+from bfsop_jax import ops
 from bfsop_jax import policy as policy_module
 from bfsop_jax.config import EVAL_SEED_START
 from bfsop_jax.data.generate import DataConfig, pose_tasks
 from bfsop_jax.policy import StrategicPolicy
+
+# the multi-candidate options timed (StrategicPolicy.plan keyword arguments)
+MULTI = {
+    "best of 4 + fill": {"best_of": 4, "fill": True},
+    "multi-start (top 8) + fill": {"multi_start": 8, "fill": True},
+    "multi-start (all) + fill": {"multi_start": True, "fill": True},
+}
 
 
 def _median_ms(fn, items) -> float:
@@ -49,7 +62,7 @@ def _program(policy: StrategicPolicy, static_graph, two_opt: bool = True):
         return policy_module._plan_jit(
             policy._params, padded, policy_module._default_key(), np.float32(1.0),
             graphdef=static_graph(), use_two_opt=two_opt, augment=False, best_of=1,
-            fill=False, multi_start=False, single=True,
+            fill=False, multi_start=0, single=True,
         ).reward  # fmt: skip
 
     return run
@@ -89,19 +102,36 @@ def main(argv: list[str] | None = None) -> None:
          lambda x: program_rehashed(padded[id(x)])),
         ("plan without the 2-opt", lambda x: policy.plan(x, two_opt=False).reward),
         ("plan without refine", lambda x: unrefined.plan(x).reward),
+    ] + [
+        (f"plan + {name}", lambda x, o=options: policy.plan(x, **o).reward)
+        for name, options in MULTI.items()
     ]  # fmt: skip
-    rows = [(name, _median_ms(fn, items)) for name, fn in rows]
+    now = [_median_ms(fn, items) for _, fn in rows]
+    rewards = {name: sum(float(policy.plan(x, **o).reward) for x in items)
+               for name, o in MULTI.items()}  # fmt: skip
     reward = sum(float(policy.plan(x).reward) for x in items)
     reward_plain = sum(float(unrefined.plan(x).reward) for x in items)
+    # the same rows traced again with jnp's arg-reductions (new programs: caches cleared)
+    fast = ops.argmin, ops.argmax
+    ops.argmin, ops.argmax = jnp.argmin, jnp.argmax
+    jax.clear_caches()
+    try:
+        before = [_median_ms(fn, items) for _, fn in rows]
+        same = sum(float(policy.plan(x).reward) for x in items) == reward
+    finally:
+        ops.argmin, ops.argmax = fast
+        jax.clear_caches()
     config = policy.config
     machine = f"{platform.machine()}, {jax.default_backend()}, {time.strftime('%Y-%m-%d')}"
     print(f"{len(items)} instances from held-out {args.preset} houses {seeds[0]}..{seeds[-1]}; "
           f"model {args.model} ({config.decoder} decoder, refine={config.refine})")  # fmt: skip
     print(machine)
-    print("\n| step | median ms / instance |\n|---|---|")
-    for name, ms in rows:
-        print(f"| {name} | {ms:.2f} |")
-    print(f"\nsummed reward: with refine {reward:.2f}, without {reward_plain:.2f}")
+    print("\n| step | median ms / instance | with jnp.argmin/argmax | ratio |\n|---|---|---|---|")
+    for (name, _), ms, old in zip(rows, now, before, strict=True):
+        print(f"| {name} | {ms:.2f} | {old:.2f} | {old / ms:.2f}x |")
+    print(f"\nsummed reward: with refine {reward:.2f}, without {reward_plain:.2f}; "
+          + ", ".join(f"{name} {r:.2f}" for name, r in rewards.items())
+          + f"; same plans with jnp's arg-reductions: {same}")  # fmt: skip
 
 
 if __name__ == "__main__":

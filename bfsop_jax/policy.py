@@ -16,6 +16,8 @@ Options, each measurable on its own:
 * ``best_of=k`` (k > 1): add k plans sampled from the decoder to the greedy one;
 * ``multi_start=True`` (POMO-style): add one greedy rollout per set, each forced to make
   its first move into that set (:func:`bfsop_jax.model.decode.decode`'s ``first_set``);
+  ``multi_start=M`` (an int): only the M sets the decoder scores highest for its first
+  move besides the greedy one's (:func:`bfsop_jax.model.decode.first_sets`);
 * ``fill=True``: spend the budget a plan leaves unused by cheapest insertion.
 
 "Best" means the largest reward, then the smallest cost. Each (batch size, options)
@@ -35,7 +37,8 @@ import numpy as np
 from flax import nnx
 
 from bfsop_jax import checkpoint as ckpt
-from bfsop_jax.model.decode import DecodeTrace, decode
+from bfsop_jax import ops
+from bfsop_jax.model.decode import DecodeTrace, decode, first_sets
 from bfsop_jax.model.features import NUM_SYMMETRIES, node_features, symmetric_features
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.sop.two_opt import budget_gate, insertion_fill
@@ -149,7 +152,7 @@ class StrategicPolicy:
         key: jax.Array | None = None,
         temperature: float = 1.0,
         fill: bool = False,
-        multi_start: bool = False,
+        multi_start: bool | int = False,
     ) -> Solution:
         """Plan one instance (``set_id`` [n]) or a batch (``set_id`` [B, n]).
 
@@ -162,8 +165,10 @@ class StrategicPolicy:
             temperature: softmax temperature of the sampled plans.
             fill: after the budget gate, spend the unused budget by greedy cheapest
                 insertion of unvisited sets (:func:`bfsop_jax.sop.insertion_fill`).
-            multi_start: also decode one greedy rollout per set of the model's K, each
-                starting with a move into its set, and keep the best (K more rollouts).
+            multi_start: ``True``: also decode one greedy rollout per set of the model's
+                K, each starting with a move into its set, and keep the best (K more
+                rollouts); an int M: M more rollouts, starting in the M sets the decoder
+                scores highest for its first move after the greedy rollout's set.
 
         Returns:
             A feasible :class:`Solution` (``nodes`` [T] or [B, T] with T = plan_length(k),
@@ -173,6 +178,7 @@ class StrategicPolicy:
             raise ValueError(f"best_of must be a positive int, got {best_of!r}")
         if not temperature > 0:
             raise ValueError(f"temperature must be positive, got {temperature}")
+        starts = _starts(multi_start, self.num_sets)
         padded, single, k = self._prepare(instance)
         # the default key is made once and the batch axis of one instance is dropped in
         # the program: on a CPU every eager op costs tens of microseconds
@@ -186,7 +192,7 @@ class StrategicPolicy:
             augment=bool(augment),
             best_of=best_of,
             fill=bool(fill),
-            multi_start=bool(multi_start),
+            multi_start=starts,
             single=single,
         )
         if k == self.num_sets:
@@ -206,7 +212,7 @@ class StrategicPolicy:
         best_of: int = 1,
         temperature: float | jax.Array = 1.0,
         fill: bool = False,
-        multi_start: bool = False,
+        multi_start: bool | int = False,
     ) -> Solution:
         """:meth:`plan` as a pure JAX function, to call inside the caller's ``jit``/``scan``.
 
@@ -235,7 +241,7 @@ class StrategicPolicy:
             bool(augment),
             int(best_of),
             bool(fill),
-            bool(multi_start),
+            _starts(multi_start, self.num_sets),
         )
         return _unpad(sol, k, single)
 
@@ -320,12 +326,13 @@ def _plan_program(
     augment: bool,
     best_of: int,
     fill: bool = False,
-    multi_start: bool = False,
+    multi_start: int = 0,
 ) -> Solution:
     """Encode, decode (greedy, symmetries, samples, starts), 2-opt, gate, keep the best.
 
     Candidates are laid out draw-major over ``views * B`` rows: the greedy plan, then the
-    ``best_of`` samples, then the K multi-start rollouts (all greedy).
+    ``best_of`` samples, then the ``multi_start`` rollouts (all greedy; one per set when it
+    is K, else the top-scored first sets).
     """
     model = nnx.merge(graphdef, params)
     b = inst.set_id.shape[0]
@@ -337,24 +344,31 @@ def _plan_program(
         features = jax.tree_util.tree_map(_flatten2, symmetric_features(features))
     cache = model.prepare(features, _tile(inst.start, views))
     samples = best_of if best_of > 1 else 0
-    starts = k if multi_start else 0
+    starts = multi_start
     draws = 1 + samples + starts
     rows = views * b
+    features_once, cache_once = features, cache
     cache = jax.tree_util.tree_map(lambda x: _tile(x, draws), cache)
     features = jax.tree_util.tree_map(lambda x: _tile(x, draws), features)
     every = jax.tree_util.tree_map(lambda x: _tile(x, views * draws), inst)
     draw = jnp.arange(draws * rows) // rows
     greedy = (draw == 0) | (draw > samples)
     first_set = None
-    if multi_start:
+    if starts == k:
         first_set = jnp.where(draw > samples, draw - samples - 1, -1).astype(jnp.int32)
+    elif starts:  # [views * B, M] -> draw-major rows after the greedy plan and samples
+        viewed = jax.tree_util.tree_map(lambda x: _tile(x, views), inst)
+        top = first_sets(model, viewed, starts, features_once, cache_once)
+        first_set = jnp.concatenate(
+            [jnp.full(((1 + samples) * rows,), -1, jnp.int32), top.T.reshape(-1)]
+        )
     trace = decode(
         model, every, key, temperature, greedy, features=features, cache=cache,
         first_set=first_set,
     )  # fmt: skip
     sol = trace.solution
     candidates = draws * views
-    if multi_start and candidates > MULTI_START_REFINE:
+    if starts and candidates > MULTI_START_REFINE:
         # refine only the greedy plan and the most promising other rollouts (ranked after
         # the budget gate): refining all K + 1 would cost ~K times the 2-opt of one plan
         ranked = budget_gate(every, sol)
@@ -367,6 +381,15 @@ def _plan_program(
     if fill:
         sol = insertion_fill(every, sol)
     return _best(sol, candidates, b)
+
+
+def _starts(multi_start: bool | int, num_sets: int) -> int:
+    """Multi-start rollouts per instance: K for ``True``, M for an int M (K at most)."""
+    if isinstance(multi_start, bool | np.bool_):
+        return num_sets if multi_start else 0
+    if not isinstance(multi_start, int | np.integer) or multi_start < 0:
+        raise ValueError(f"multi_start must be a bool or a non-negative int, got {multi_start!r}")
+    return min(int(multi_start), num_sets)
 
 
 def _top_candidates(sol: Solution, candidates: int, b: int, keep: int) -> jax.Array:
@@ -434,6 +457,6 @@ def _best(sol: Solution, candidates: int, b: int) -> Solution:
     cost = sol.cost.reshape(candidates, b)
     top = jnp.max(reward, axis=0)
     tie = reward >= top - 1e-6 * jnp.maximum(1.0, jnp.abs(top))
-    pick = jnp.argmin(jnp.where(tie, cost, jnp.inf), axis=0)
+    pick = ops.argmin(jnp.where(tie, cost, jnp.inf), axis=0)
     rows = pick * b + jnp.arange(b)
     return jax.tree_util.tree_map(lambda x: x[rows], sol)

@@ -154,7 +154,9 @@ COMPARE_PLANNERS = {
         "transformer+2opt",
         "transformer+2opt+fill",
         "transformer+2opt+best_of_4+fill",
+        "transformer+2opt+best_of_8+fill",
         "transformer+2opt+multi_start+fill",
+        "transformer+2opt+multi_start_8+best_of_4+fill",
     )
 }
 

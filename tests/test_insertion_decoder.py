@@ -322,3 +322,26 @@ def test_refined_routes_free_budget(teacher):
 def test_config_names_a_bad_decoder():
     with pytest.raises(ValueError, match="decoder"):
         dataclasses.replace(INSERT, decoder="prepend")
+
+
+def test_top_first_sets_of_the_insertion_decoder():
+    """``first_sets`` ranks sets by the insertion decoder's first-step scores (its greedy
+    trace), leaving the greedy move's set out; decoding from them starts in them."""
+    from bfsop_jax.model.decode import first_sets  # noqa: PLC0415
+
+    batch = stack(instances(True))
+    model = untrained(dataclasses.replace(INSERT, refine=True), 2)
+    g, p = nnx.split(model, nnx.Param)
+    top = np.asarray(jax.jit(lambda p, i: first_sets(nnx.merge(g, p), i, 3))(p, batch))
+    probs = np.asarray(run(model, batch).probs[:, 0, :-1])  # [B, N] first step
+    set_id = np.asarray(batch.set_id)
+    for i in range(top.shape[0]):
+        best = {s: probs[i][set_id[i] == s].max() for s in set(set_id[i].tolist()) if s >= 0}
+        greedy_set = set_id[i][int(np.argmax(probs[i]))]
+        ranked = sorted((s for s, q in best.items() if q > 0 and s != greedy_set),
+                        key=lambda s: -best[s])[:3]  # fmt: skip
+        np.testing.assert_array_equal(top[i][: len(ranked)], ranked)
+    fn = jax.jit(lambda p, i, f: decode(nnx.merge(g, p), i, first_set=f))
+    first = np.asarray(fn(p, batch, jnp.asarray(top[:, 0])).choices[:, 0])
+    forced = top[:, 0] >= 0
+    np.testing.assert_array_equal(set_id[np.arange(len(first)), first][forced], top[forced, 0])

@@ -205,6 +205,48 @@ def test_multi_start_is_at_least_the_greedy_plan(policy):
     np.testing.assert_array_equal(policy.plan(batch, multi_start=True).nodes, multi.nodes)
 
 
+def test_top_first_sets_follow_the_first_step_scores(policy):
+    """``first_sets``: the sets whose best allowed node the decoder scores highest for its
+    first move, best first, the greedy move's own set left out, -1 past the open sets."""
+    from bfsop_jax.model.decode import first_sets  # noqa: PLC0415
+
+    for inst in instances(range(60, 64)):
+        probs = np.asarray(policy.trace(inst).probs[0])[:19]  # first step, real nodes
+        set_id = np.asarray(inst.set_id)
+        padded = policy._prepare(inst)[0]
+        top = np.asarray(first_sets(policy.model, padded, SETS))[0]
+        per_set = {s: probs[set_id == s].max() for s in set(set_id[set_id >= 0].tolist())}
+        greedy_set = set_id[int(np.argmax(probs))]
+        ranked = sorted(
+            (s for s, p in per_set.items() if p > 0 and s != greedy_set), key=lambda s: -per_set[s]
+        )
+        np.testing.assert_array_equal(top[: len(ranked)], ranked)
+        assert (top[len(ranked) :] == -1).all()
+
+
+def test_multi_start_over_the_top_first_sets(policy):
+    """``multi_start=M``: M more rollouts from the top-scored first sets; feasible, never
+    worse than greedy, deterministic; M >= K is the full multi-start, 0 none."""
+    insts = instances(range(30, 38))
+    batch = stack(insts)
+    plain = policy.plan(batch)
+    top = policy.plan(batch, multi_start=2)
+    for i, inst in enumerate(insts):
+        assert_matches_evaluate(inst, jax.tree_util.tree_map(lambda x, i=i: x[i], top))
+    assert (np.asarray(top.reward) >= np.asarray(plain.reward) - 1e-5).all()
+    np.testing.assert_array_equal(policy.plan(batch, multi_start=2).nodes, top.nodes)
+    every = policy.plan(batch, multi_start=True)
+    np.testing.assert_array_equal(policy.plan(batch, multi_start=SETS + 3).nodes, every.nodes)
+    np.testing.assert_array_equal(policy.plan(batch, multi_start=0).nodes, plain.nodes)
+    # with the coordinate symmetries each view ranks its own first sets
+    both = policy.plan(batch, multi_start=2, augment=True)
+    for i, inst in enumerate(insts):
+        assert_matches_evaluate(inst, jax.tree_util.tree_map(lambda x, i=i: x[i], both))
+    for bad in (-1, 1.5, "4"):
+        with pytest.raises(ValueError, match="multi_start"):
+            policy.plan(batch, multi_start=bad)
+
+
 def test_closed_tour_ends_at_the_depot(policy):
     inst = random_instance(5, num_sets=6, viewpoints=3, closed=True)
     sol = policy.plan(inst)

@@ -109,7 +109,7 @@ class TransformerPlanner:
     augment: bool = False
     best_of: int = 1
     fill: bool = False
-    multi_start: bool = False
+    multi_start: bool | int = False
     name: str = "transformer"
 
     def __call__(self, mask: jax.Array, instance: SOPInstance) -> Solution:

@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from bfsop_jax import ops
 from bfsop_jax.model.features import (
     NodeFeatures,
     insertion_step_features,
@@ -47,6 +48,7 @@ __all__ = [
     "TeacherForcing",
     "allowed_next",  # re-exported from bfsop_jax.sop.rules
     "decode",
+    "first_sets",
     "forced_logits",
     "greedy_decode",
     "plan_value",  # re-exported from bfsop_jax.sop.rules
@@ -188,13 +190,13 @@ def _insertion_teacher_forcing(
     node_sets = jnp.take_along_axis(instance.set_id, jnp.clip(teacher_nodes, 0), axis=-1)
     sets_in = included[..., None] & (node_sets[:, None, :, None] == jnp.arange(k))
     visited = blocked_sets(instance)[:, None] | jnp.any(sets_in, axis=2)  # [B, S, K]
-    last_pos = jnp.argmax(visit[:, None] & (rank[:, None] == s - 1), axis=-1)  # [B, S]
+    last_pos = ops.argmax(visit[:, None] & (rank[:, None] == s - 1), axis=-1)  # [B, S]
     last = jnp.where(
         s[..., 0] == 0,
         instance.start[:, None],
         jnp.take_along_axis(teacher_nodes, last_pos, axis=1),
     )
-    next_pos = jnp.argmax(visit[:, None] & (rank[:, None] == s), axis=-1)
+    next_pos = ops.argmax(visit[:, None] & (rank[:, None] == s), axis=-1)
     at_end = s[..., 0] >= m_full[:, None]  # [B, S] every teacher node is in
     target = jnp.where(at_end, n, jnp.take_along_axis(teacher_nodes, next_pos, axis=1)).astype(
         jnp.int32
@@ -274,8 +276,10 @@ def decode(
         return jnp.where(use, forced, allowed)
 
     def choose(scores, step_key, done):
-        sampled = jax.random.categorical(step_key, scores / temperature, axis=-1)
-        choice = jnp.where(greedy, jnp.argmax(scores, axis=-1), sampled)
+        # jax.random.categorical's Gumbel-max draw, with the CPU-friendly arg-max
+        noise = jax.random.gumbel(step_key, scores.shape, scores.dtype)
+        sampled = ops.argmax(scores / temperature + noise, axis=-1)
+        choice = jnp.where(greedy, ops.argmax(scores, axis=-1), sampled)
         stop = done | (choice == n)
         probs = jnp.where(done[:, None], 0.0, jax.nn.softmax(scores, axis=-1))
         return jnp.where(stop, -1, choice).astype(jnp.int32), stop, probs
@@ -288,28 +292,14 @@ def decode(
     def step(carry, inputs):
         step_key, index = inputs
         last, visited, done, travelled = carry
-        allowed = next_mask(  # [B, 1, N+1]
-            instance, visited[:, None], last[:, None], travelled[:, None], model.config.budget_mask
+        scores, allowed = _append_scores(
+            model, instance, features, cache, carry, lambda a: restrict_first(a, index)
         )
-        allowed = restrict_first(allowed[:, 0], index)[:, None]
-        budget_left = None
-        if model.config.budget_aware:
-            budget_left = normalised_budget(instance.budget - travelled, cache.cost_scale)
-            budget_left = budget_left[:, None]
-        step_in = None
-        if uses_step:
-            step_in = step_features(instance, features, last[:, None], travelled[:, None])
-        scores = model.decoder(cache, last[:, None], allowed, budget_left, step_in)[:, 0]
         node, stop, probs = choose(scores, step_key, done)
         new_last, visited, travelled = advance(instance, last, visited, travelled, node, stop)
-        return (new_last, visited, stop, travelled), (node, probs, allowed[:, 0])
+        return (new_last, visited, stop, travelled), (node, probs, allowed)
 
-    carry0 = (
-        instance.start.astype(jnp.int32),
-        blocked_sets(instance),
-        jnp.zeros((b,), bool),
-        jnp.zeros((b,), jnp.float32),
-    )
+    carry0 = _append_start(instance)
     _, (chosen, probs, allowed) = jax.lax.scan(step, carry0, (keys, jnp.arange(steps)))
     nodes = jnp.concatenate([instance.start[:, None], chosen.T], axis=1).astype(jnp.int32)
     nodes = close_plan(instance, nodes)  # a closed tour or fixed goal ends at its end node
@@ -320,6 +310,80 @@ def decode(
         allowed=jnp.swapaxes(allowed, 0, 1),
         choices=chosen.T,
     )
+
+
+def _append_start(instance: SOPInstance):
+    """Carry of an append decoding before its first step: last node [B], visited sets
+    [B, K], done [B], travelled [B]."""
+    b = instance.set_id.shape[0]
+    return (
+        instance.start.astype(jnp.int32),
+        blocked_sets(instance),
+        jnp.zeros((b,), bool),
+        jnp.zeros((b,), jnp.float32),
+    )
+
+
+def _append_scores(model, instance, features, cache, carry, adjust):
+    """The append decoder's scores [B, N+1] in one state, with its mask (``adjust`` edits
+    the mask first)."""
+    last, visited, _, travelled = carry
+    allowed = next_mask(  # [B, 1, N+1]
+        instance, visited[:, None], last[:, None], travelled[:, None], model.config.budget_mask
+    )
+    allowed = adjust(allowed[:, 0])
+    budget_left = None
+    if model.config.budget_aware:
+        budget_left = normalised_budget(instance.budget - travelled, cache.cost_scale)[:, None]
+    step_in = None
+    if model.config.step_features:
+        step_in = step_features(instance, features, last[:, None], travelled[:, None])
+    scores = model.decoder(cache, last[:, None], allowed[:, None], budget_left, step_in)
+    return scores[:, 0], allowed
+
+
+def first_sets(
+    model: StrategicTransformer,
+    instance: SOPInstance,
+    count: int,
+    features: NodeFeatures | None = None,
+    cache: DecoderCache | None = None,
+) -> jax.Array:
+    """The ``count`` sets the decoder scores highest for its first move, after the greedy
+    choice's own set: the starts of a top-M multi-start decoding.
+
+    A set's score is the best score of its allowed nodes in the first decoding state. The
+    greedy rollout already starts in the arg-max's set, so that set is left out.
+
+    Returns:
+        [B, count] int32 set indices, best first; -1 where fewer sets have an allowed node
+        (a free first move).
+    """
+    n = instance.set_id.shape[-1]
+    k = instance.set_reward.shape[-1]
+    features = _features(instance, features)
+    if cache is None:
+        cache = model.prepare(features, instance.start)
+    if model.config.decoder == "insertion":
+        carry = _insertion_start(instance, plan_length(k) - 1)
+        scores, allowed, _ = _insertion_scores(
+            model, instance, features, cache, carry, 0, lambda a, i: a
+        )
+    else:
+        scores, allowed = _append_scores(
+            model, instance, features, cache, _append_start(instance), lambda a: a
+        )
+    scores = jnp.where(allowed, scores, -jnp.inf)
+    greedy = ops.argmax(scores, axis=-1)  # [B]
+    set_id = jnp.asarray(instance.set_id)
+    greedy_set = jnp.where(
+        greedy < n, jnp.take_along_axis(set_id, jnp.clip(greedy, 0, n - 1)[:, None], 1)[:, 0], -1
+    )
+    member = set_id[:, :, None] == jnp.arange(k)  # [B, N, K]
+    per_set = jnp.max(jnp.where(member, scores[:, :n, None], -jnp.inf), axis=1)  # [B, K]
+    per_set = jnp.where(jnp.arange(k) == greedy_set[:, None], -jnp.inf, per_set)
+    best, index = jax.lax.top_k(per_set, count)
+    return jnp.where(jnp.isfinite(best), index, -1).astype(jnp.int32)
 
 
 def _insertion_start(instance: SOPInstance, steps: int):
@@ -349,7 +413,7 @@ def _insert(instance: SOPInstance, carry, after: jax.Array, node: jax.Array, sto
         on_route = jnp.take_along_axis(set_id, jnp.clip(grown, 0, set_id.shape[-1] - 1), axis=1)
         slot = jnp.arange(grown.shape[-1])
         here = (on_route == sets[:, None]) & (slot >= 1) & (slot <= m[:, None])
-        j = jnp.take_along_axis(grown, jnp.argmax(here, axis=1)[:, None], axis=1)[:, 0]
+        j = jnp.take_along_axis(grown, ops.argmax(here, axis=1)[:, None], axis=1)[:, 0]
     route = jnp.where(stop[:, None], route, grown)
     visited = visited | (jax.nn.one_hot(sets, visited.shape[-1], dtype=bool) & ~stop[:, None])
     return route, m, visited, stop, jnp.where(stop, last, j)

@@ -30,6 +30,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from bfsop_jax import ops
 from bfsop_jax.sop.rules import blocked_sets, open_nodes, plan_end, plan_reward
 from bfsop_jax.sop.types import Solution, SOPInstance
 
@@ -105,7 +106,7 @@ def _best_nodes(instance: SOPInstance, cx: jax.Array, route: jax.Array, m: jax.A
     def layer(table, pos):
         cand = table[:, None] + cost  # [from, to]
         best = jnp.min(cand, axis=0)
-        back = jnp.argmin(cand, axis=0).astype(jnp.int32)
+        back = ops.argmin(cand, axis=0).astype(jnp.int32)
         allowed = instance.set_id == order[pos]
         active = pos <= m
         new = jnp.where(allowed, best, jnp.inf)
@@ -113,7 +114,7 @@ def _best_nodes(instance: SOPInstance, cx: jax.Array, route: jax.Array, m: jax.A
         return jnp.where(active, new, table), jnp.where(active, back, stay)
 
     table, back = jax.lax.scan(layer, table0, jnp.arange(1, t1))
-    last = jnp.argmin(table + close).astype(jnp.int32)
+    last = ops.argmin(table + close).astype(jnp.int32)
 
     def trace(node, ptr):
         return ptr[node], node
@@ -159,7 +160,7 @@ def _best_reversal(
     route's cost) by more than a relative 1e-6."""
     t1 = route.shape[0]
     scores = _reversal_costs(cx, route, m)
-    flat = jnp.argmin(scores)
+    flat = ops.argmin(scores)
     i, k = flat // t1, flat % t1
     tol = 1e-6 * jnp.maximum(1.0, jnp.abs(cost))
     pos = jnp.arange(t1)
@@ -206,7 +207,7 @@ def refine_route(
             prev = route[jnp.clip(pos - 1, 0, t1 - 1)]
             nxt = route[jnp.clip(pos + 1, 0, t1 - 1)]
             detour = jnp.where(same_set, cx[prev, :n] + cx[:n, nxt].T, jnp.inf)  # [T+1, N]
-            best = jnp.argmin(detour, axis=1).astype(route.dtype)
+            best = ops.argmin(detour, axis=1).astype(route.dtype)
             now = cx[prev, route] + cx[route, nxt]
             move = (pos >= 1) & (pos <= m) & (pos % 2 == parity)
             move = move & (jnp.min(detour, axis=1) < now)
@@ -343,7 +344,7 @@ def insertion_costs(
     """
     cx = _extended_cost(instance)
     deltas = _insertion_deltas(cx, route, m)
-    after = jnp.argmin(deltas, axis=0).astype(jnp.int32)
+    after = ops.argmin(deltas, axis=0).astype(jnp.int32)
     return jnp.min(deltas, axis=0), after, _route_cost(cx, route)
 
 
@@ -370,7 +371,7 @@ def _insertion_fill_single(instance: SOPInstance, solution: Solution) -> Solutio
         ok = free[None, :] & (cost + delta <= instance.budget)
         ok = ok & (m + 2 < t1)  # a slot is left for the end
         score = jnp.where(ok, jnp.maximum(delta, 0.0) / reward[None, :], jnp.inf)
-        flat = jnp.argmin(score)
+        flat = ops.argmin(score)
         p, j = flat // n, flat % n
         found = jnp.isfinite(score.reshape(-1)[flat])
         shifted = insert_after(route, p, j)
