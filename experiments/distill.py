@@ -83,6 +83,10 @@ class DistillPreset:
     nav_houses: int = 2
     nav_categories: tuple[str, ...] = ()  # () = all nine
     nav_methods: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st")
+    # Table II's planners (names of bfsop_jax.eval.solvers.PLANNERS; () = all of them) and
+    # those ``--compare`` runs for each other model (() = COMPARE_PLANNERS)
+    planners: tuple[str, ...] = ()
+    compare_planners: tuple[str, ...] = ()
 
 
 PRESETS: dict[str, DistillPreset] = {
@@ -143,6 +147,15 @@ PRESETS: dict[str, DistillPreset] = {
         # improvement) take minutes to compile in every planner of the evaluation; tests of
         # the insertion decoder and its CLI train it explicitly
         model_options=(("budget_mask", True), ("step_features", True), ("decoder", "append")),
+        # one planner of each kind (every planner program compiles twice: single, batched)
+        planners=(
+            "transformer",
+            "transformer+2opt",
+            "transformer+2opt+augment",
+            "transformer+2opt+best_of_2+fill",
+            "transformer+2opt+multi_start_8+best_of_4+fill",
+        ),
+        compare_planners=("transformer+2opt", "transformer+2opt+multi_start_8+best_of_4+fill"),
     ),
 }
 
@@ -476,6 +489,15 @@ def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) 
     return summary
 
 
+def preset_planners(preset: DistillPreset, compare: bool = False) -> dict[str, dict[str, Any]]:
+    """The planners (name -> ``StrategicPolicy.plan`` options) a preset's evaluation runs for
+    its model, or with ``compare`` for each ``--compare`` model."""
+    names = preset.compare_planners if compare else preset.planners
+    if not names:
+        return COMPARE_PLANNERS if compare else solver_eval.PLANNERS
+    return {name: solver_eval.PLANNERS[name] for name in names}
+
+
 def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any] | None) -> dict:
     checkpoint = Path(args.checkpoint) if args.checkpoint else out
     if args.eval_seeds:
@@ -491,7 +513,9 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     instances, owners = pose_tasks(seeds, cfg, progress=not args.no_progress)
     n = int(owners.shape[0])
     print(f"evaluation: {n} instances from houses {lo}..{hi - 1}")
-    evaluation = solver_eval.evaluate_solvers(policy, instances, progress=not args.no_progress)
+    evaluation = solver_eval.evaluate_solvers(
+        policy, instances, planners=preset_planners(preset), progress=not args.no_progress
+    )
     result = evaluation.summary
     result["house_seeds"] = [int(lo), int(hi)]
     result["checkpoint"] = str(checkpoint)
@@ -515,11 +539,12 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
             ablation_rows[name] = {**info, **{k: row[k] for k in ("mean_reward", "mean_cost",
                                                                  "reward_ratio")}}  # fmt: skip
         result["ablations"] = ablation_rows
+    compare_planners = preset_planners(preset, compare=True)
     if args.compare:
         result["compare"] = {str(checkpoint): result["planners"]}
         for other in args.compare:
             sub = solver_eval.evaluate_solvers(
-                StrategicPolicy.load(other), instances, planners=COMPARE_PLANNERS,
+                StrategicPolicy.load(other), instances, planners=compare_planners,
                 progress=not args.no_progress, teacher=evaluation.teacher,
             )  # fmt: skip
             result["compare"][other] = sub.summary["planners"]
@@ -532,10 +557,10 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     )
     text = solver_eval.write_tables(result, out / "tables.md", ablation_rows, header)
     if args.compare:
-        text += solver_eval.compare_table(result["compare"], COMPARE_PLANNERS)
+        text += solver_eval.compare_table(result["compare"], compare_planners)
         files.write_text(out / "tables.md", text)
         title = f"{args.preset}: {n} held-out instances of houses {lo}..{hi - 1}"
-        plot_model_comparison(result["compare"], out / "compare.png", COMPARE_PLANNERS, title)
+        plot_model_comparison(result["compare"], out / "compare.png", compare_planners, title)
     print(text)
     if preset.nav_houses > 0 and not args.no_navigation:
         result["navigation"] = stage_navigation(args, preset, out, policy, checkpoint)

@@ -158,7 +158,7 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     ev3 = json.loads((other / "solver_eval.json").read_text())
     assert list(ev3["compare"]) == [str(run), "demo"]
     assert ev3["compare"]["demo"]["vns"] == ev3["planners"]["vns"]  # one teacher run
-    assert set(ev3["compare"]["demo"]) >= set(distill.COMPARE_PLANNERS)
+    assert set(ev3["compare"]["demo"]) >= set(distill.PRESETS["smoke"].compare_planners)
     assert "| demo | transformer+2opt |" in (other / "tables.md").read_text()
     assert (other / "compare.png").stat().st_size > 0  # reward against latency, both models
 
