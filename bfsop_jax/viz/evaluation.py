@@ -142,6 +142,7 @@ def plot_model_comparison(
     insertion = None
     skip = ("vns", "greedy_insertion")
     shown = None if planners is None else set(planners)
+    labels = []  # (x, y, text, colour), placed once every point is drawn
     for i, (label, planners) in enumerate(models.items()):
         scale = max(planners["vns"]["mean_reward"], 1e-12)
         rows = sorted(
@@ -155,8 +156,7 @@ def plot_model_comparison(
         for xi, yi, name in rows:
             for old, new in _SHORT:
                 name = name.replace(old, new)
-            ax.annotate(name, (xi, yi), xytext=(4, -3 - 4 * i), textcoords="offset points",
-                        fontsize=6, color=colour)  # fmt: skip
+            labels.append((xi, yi, name, colour))
         if insertion is None and "greedy_insertion" in planners:
             g = planners["greedy_insertion"]
             insertion = (g["latency_ms_single"], g["mean_reward"] / scale)
@@ -166,6 +166,7 @@ def plot_model_comparison(
         ax.axhline(goal, color="grey", ls=":", lw=1)
     ax.axvline(latency_budget_ms, color="grey", ls=":", lw=1)
     ax.set_xscale("log")
+    _place_labels(ax, labels)
     ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
     ax.xaxis.set_minor_formatter(FormatStrFormatter("%g"))
     ax.tick_params(axis="x", which="minor", labelsize=7)
@@ -173,3 +174,26 @@ def plot_model_comparison(
                ylabel="reward / VNS", title=title, title_size=10, grid="both",
                legend={"fontsize": 7, "loc": "lower right"})  # fmt: skip
     return finish(fig, path)
+
+
+def _place_labels(ax: plt.Axes, labels: list[tuple[float, float, str, str]]) -> None:
+    """Annotate points (x, y, text, colour) at 6 pt, each label moved up or down in steps
+    of 7 pt until its box clears the labels already placed (nearly coinciding points)."""
+    ax.autoscale_view()
+    to_display = ax.transData.transform
+    points_to_pixels = ax.figure.dpi / 72.0
+    placed: list[tuple[float, float, float, float]] = []  # pixel boxes x0, x1, y0, y1
+    for x, y, text, colour in sorted(labels, key=lambda r: (-r[1], r[0])):
+        px, py = to_display((x, y))
+        width = 3.2 * len(text) * points_to_pixels
+        for step in (0, 1, -1, 2, -2, 3, -3, 4, -4):
+            dy = -3 - 7 * step  # points
+            y0 = py + (dy - 2) * points_to_pixels
+            box = (px + 4 * points_to_pixels, px + 4 * points_to_pixels + width, y0,
+                   y0 + 6 * points_to_pixels)  # fmt: skip
+            if not any(b[0] < box[1] and box[0] < b[1] and b[2] < box[3] and box[2] < b[3]
+                       for b in placed):  # fmt: skip
+                break
+        placed.append(box)
+        ax.annotate(text, (x, y), xytext=(4, dy), textcoords="offset points", fontsize=6,
+                    color=colour)  # fmt: skip
