@@ -51,7 +51,7 @@ from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training import RunConfig, train
 from bfsop_jax.training.bc import evaluate_imitation
 from bfsop_jax.training.config import MODEL_PRESETS
-from bfsop_jax.training.rl import RLConfig
+from bfsop_jax.training.rl import BASELINES, RLConfig
 from bfsop_jax.viz import plot_distance_mass, plot_model_comparison, plot_tour_comparison
 
 
@@ -265,6 +265,11 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument(
         "--rl-bc-weight", type=float, default=RLConfig.bc_weight,
         help="rl: weight of the teacher's cross-entropy next to the reward term",
+    )  # fmt: skip
+    ap.add_argument(
+        "--rl-baseline", default=RLConfig.baseline, choices=list(BASELINES),
+        help="rl: a sampled plan's reward is measured against the mean of the instance's "
+        "other samples (leave_one_out) or against its greedy plan (greedy, self-critical)",
     )  # fmt: skip
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
@@ -677,7 +682,7 @@ def stage_rl(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> 
     if not (base / "model").is_dir():
         raise ValueError(f"--stage rl needs a trained run in {base} (train it first)")
     rl = RLConfig(epochs=args.rl_epochs, lr=args.rl_lr, samples=args.rl_samples,
-                  bc_weight=args.rl_bc_weight)  # fmt: skip
+                  bc_weight=args.rl_bc_weight, baseline=args.rl_baseline)  # fmt: skip
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
     train_ds, val_ds = _with_extra_data(args, train_ds, val_ds, {"data_dir": str(store.root)})
     if val_ds is None:

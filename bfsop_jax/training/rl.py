@@ -11,9 +11,12 @@ model and POMO):
   its budget-gated plan (:func:`bfsop_jax.sop.budget_gate`: what inference would run;
   with the model's budget mask every sampled plan fits already);
 * a plan's advantage is its reward minus the mean reward of the instance's *other*
-  samples (a leave-one-out baseline: unbiased, no critic), divided by the teacher's reward
-  on that instance (or the best sample's, where it is higher), so every instance weighs
-  the same whatever its reward scale;
+  samples (``baseline="leave_one_out"``: unbiased, no critic, as in POMO) or minus the
+  reward of the instance's greedy plan (``baseline="greedy"``: the self-critical baseline
+  of Rennie et al. and Kool et al.'s rollout baseline, which rewards exactly the samples
+  that beat what greedy decoding would plan), divided by the teacher's reward on that
+  instance (or the best sample's, where it is higher), so every instance weighs the same
+  whatever its reward scale;
 * the loss is ``-mean(advantage * log p(plan))`` plus ``bc_weight`` times the
   behaviour-cloning cross-entropy of the teacher's plans of the same minibatch (an anchor
   that keeps the policy near the teacher while it improves on its own plans).
@@ -63,9 +66,17 @@ from bfsop_jax.training.bc import (
 )
 from bfsop_jax.training.metrics import imitation_stats
 
-__all__ = ["RLConfig", "RLState", "finetune_rl", "greedy_reward_ratio", "make_rl_epoch"]
+__all__ = [
+    "BASELINES",
+    "RLConfig",
+    "RLState",
+    "finetune_rl",
+    "greedy_reward_ratio",
+    "make_rl_epoch",
+]
 
 RL_LOG = "rl_metrics.jsonl"
+BASELINES = ("leave_one_out", "greedy")  # what a sampled plan's reward is measured against
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +93,9 @@ class RLConfig:
     temperature: float = 1.0  # softmax temperature of the sampler
     grad_clip: float = 1.0  # global-norm clipping threshold
     augment: bool = True  # each sample under a random coordinate symmetry
+    # "leave_one_out": the mean of the instance's other samples; "greedy": the reward of
+    # the instance's greedy plan (one more decoding per instance and step)
+    baseline: str = "leave_one_out"
 
     def __post_init__(self) -> None:
         for name in ("epochs", "batch_size", "samples"):
@@ -95,6 +109,10 @@ class RLConfig:
                 raise ValueError(f"RLConfig.{name} must be positive, got {getattr(self, name)}")
         if not self.bc_weight >= 0:
             raise ValueError(f"RLConfig.bc_weight must be >= 0, got {self.bc_weight}")
+        if self.baseline not in BASELINES:
+            raise ValueError(
+                f"RLConfig.baseline must be one of {', '.join(BASELINES)}, got {self.baseline!r}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -162,7 +180,11 @@ def _rl_epoch(state: RLState, data, key, *, graphdef, rl: RLConfig, batch_size, 
         plans = jax.lax.stop_gradient(trace.solution)
         teacher_reward, _ = plan_value(inst, batch["teacher_nodes"])  # [B]
         reward = budget_gate(tiled, plans).reward.reshape(-1, m)  # [B, M]: what would run
-        baseline = (jnp.sum(reward, axis=1, keepdims=True) - reward) / (m - 1)
+        if rl.baseline == "greedy":  # what greedy decoding plans (no symmetry, as at inference)
+            greedy = decode(model, inst, greedy=True).solution
+            baseline = budget_gate(inst, jax.lax.stop_gradient(greedy)).reward[:, None]
+        else:
+            baseline = (jnp.sum(reward, axis=1, keepdims=True) - reward) / (m - 1)
         # the instance's reward scale: the teacher's (or a sample's, where one beats it)
         scale = jnp.maximum(jnp.maximum(teacher_reward, jnp.max(reward, axis=1)), 1e-6)[:, None]
         adv = ((reward - baseline) / scale).reshape(-1)
@@ -277,8 +299,10 @@ def finetune_rl(
     if (out / ckpt.CONFIG_FILE).is_file():  # resuming: the same recipe (more epochs allowed)
         old = ckpt.read_config(out).get("rl")
 
-        def same(r):
-            return r is not None and {**r, "rl": {**r["rl"], "epochs": None}}
+        def same(r):  # runs written before a field existed ran with its default
+            return r is not None and {**r, "rl": {**defaults, **r["rl"], "epochs": None}}
+
+        defaults = RLConfig().to_dict()
 
         if same(old) != same(recipe):
             raise ValueError(f"{out} holds a fine-tuning run of another recipe: {old}")
