@@ -181,8 +181,7 @@ def _rl_epoch(state: RLState, data, key, *, graphdef, rl: RLConfig, batch_size, 
         teacher_reward, _ = plan_value(inst, batch["teacher_nodes"])  # [B]
         reward = budget_gate(tiled, plans).reward.reshape(-1, m)  # [B, M]: what would run
         if rl.baseline == "greedy":  # what greedy decoding plans (no symmetry, as at inference)
-            greedy = decode(model, inst, greedy=True).solution
-            baseline = budget_gate(inst, jax.lax.stop_gradient(greedy)).reward[:, None]
+            baseline = _greedy_reward(model, inst)[:, None]
         else:
             baseline = (jnp.sum(reward, axis=1, keepdims=True) - reward) / (m - 1)
         # the instance's reward scale: the teacher's (or a sample's, where one beats it)
@@ -204,6 +203,11 @@ def _rl_epoch(state: RLState, data, key, *, graphdef, rl: RLConfig, batch_size, 
     return state, jnp.sum(stats, axis=0)
 
 
+def _greedy_reward(model: StrategicTransformer, inst) -> jax.Array:
+    """[B] reward of the budget-gated greedy plans (no 2-opt)."""
+    return budget_gate(inst, decode(model, inst, greedy=True).solution).reward
+
+
 @functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances"))
 def _greedy_sums(params, data, *, graphdef, batch_size: int, num_instances: int):
     index, weight = padded_batches(num_instances, batch_size)
@@ -213,7 +217,7 @@ def _greedy_sums(params, data, *, graphdef, batch_size: int, num_instances: int)
         idx, w = xs
         batch = jax.tree_util.tree_map(lambda x: x[idx], data)
         inst = _instances(batch)
-        greedy = budget_gate(inst, decode(model, inst, greedy=True).solution).reward
+        greedy = _greedy_reward(model, inst)
         teacher, _ = plan_value(inst, batch["teacher_nodes"])
         return total + jnp.stack([jnp.sum(w * greedy), jnp.sum(w * teacher)]), None
 
@@ -299,10 +303,10 @@ def finetune_rl(
     if (out / ckpt.CONFIG_FILE).is_file():  # resuming: the same recipe (more epochs allowed)
         old = ckpt.read_config(out).get("rl")
 
-        def same(r):  # runs written before a field existed ran with its default
-            return r is not None and {**r, "rl": {**defaults, **r["rl"], "epochs": None}}
+        defaults = RLConfig().to_dict()  # runs written before a field existed ran with it
 
-        defaults = RLConfig().to_dict()
+        def same(r):
+            return r is not None and {**r, "rl": {**defaults, **r["rl"], "epochs": None}}
 
         if same(old) != same(recipe):
             raise ValueError(f"{out} holds a fine-tuning run of another recipe: {old}")
