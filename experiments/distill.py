@@ -523,6 +523,7 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     )
     result = evaluation.summary
     result["house_seeds"] = [int(lo), int(hi)]
+    result["preset"] = args.preset
     result["checkpoint"] = str(checkpoint)
     result["machine"] = f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.default_backend()}"
     result["date"] = time.strftime("%Y-%m-%d")

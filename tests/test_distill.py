@@ -99,6 +99,47 @@ def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
     assert (tmp_path / "compare.png").stat().st_size > 0
 
 
+def test_pooled_evaluations_equal_one_evaluation_of_all_houses(policy, batch, tmp_path):
+    """Two runs on disjoint house ranges pool into the summary one run of both would give
+    (means, ratios, paired interval); mismatched runs are refused."""
+    from experiments import pool_eval
+
+    planners = {"transformer+2opt": {"two_opt": True}}
+    kw = dict(vns_kwargs={"max_iters": 50, "max_no_improve": 20}, planners=planners,
+              batch_size=2, repeats=1, progress=False)  # fmt: skip
+    whole = solver_eval.evaluate_solvers(policy, batch, **kw).summary
+    parts = []
+    for i, (lo, hi) in enumerate([(0, 4), (4, 6)]):
+        part = solver_eval.evaluate_solvers(policy, solver_eval.take(batch, slice(lo, hi)), **kw)
+        summary = {**part.summary, "house_seeds": [lo, hi], "checkpoint": "m", "preset": "x"}
+        (tmp_path / f"run{i}").mkdir()
+        solver_eval.write_json(summary, tmp_path / f"run{i}" / "solver_eval.json")
+        parts.append(summary)
+    pooled = pool_eval.main([str(tmp_path / "run0"), str(tmp_path / "run1"),
+                             "--out", str(tmp_path / "pooled")])  # fmt: skip
+    assert pooled["instances"] == 6 and pooled["house_seeds"] == [[0, 4], [4, 6]]
+    for name in ("vns", "greedy_insertion", "transformer+2opt"):
+        a, b = pooled["planners"][name], whole["planners"][name]
+        assert a["rewards"] == pytest.approx(b["rewards"], abs=1e-6)
+        assert a["mean_cost"] == pytest.approx(b["mean_cost"], rel=1e-5)
+    assert pooled["planners"]["transformer+2opt"]["reward_ratio"] == pytest.approx(
+        whole["planners"]["transformer+2opt"]["reward_ratio"], rel=1e-5
+    )
+    d, lo, hi = solver_eval.paired_vs(pooled, "transformer+2opt")
+    assert (d, lo, hi) == pytest.approx(solver_eval.paired_vs(whole, "transformer+2opt"), abs=1e-6)
+    text = (tmp_path / "pooled" / "tables.md").read_text()
+    assert "6 held-out instances of houses 0..3, 4..5" in text and f"{d:+.3f}" in text
+    for bad, match in [
+        ([parts[0], parts[0]], "overlapping house ranges"),
+        ([parts[0], {**parts[1], "checkpoint": "other"}], "different checkpoints"),
+        ([parts[0], {**parts[1], "preset": "paper"}], "different presets"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            solver_eval.pool_summaries(bad)
+    with pytest.raises(SystemExit):
+        pool_eval.main([str(tmp_path), "--out", str(tmp_path / "x")])  # no solver_eval.json
+
+
 def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
     mass = solver_eval.decoder_distance_mass(policy, batch, batch=4)
     assert mass.shape == (2, 5)

@@ -106,7 +106,8 @@ def test_selection_keeps_the_base_model_when_validation_says_so(base, tmp_path, 
     run, train_ds, val_ds = base
     scores = iter([0.9, 0.5, 0.7])  # epoch 0 best on validation
     monkeypatch.setattr(rl_module, "greedy_reward_ratio", lambda *a, **k: next(scores))
-    rl = RLConfig(epochs=2, batch_size=16, samples=2, lr=1e-2)
+    # the recipe of the test above but for its epochs: the same compiled epoch
+    rl = RLConfig(epochs=2, batch_size=16, samples=8, lr=3e-3, bc_weight=0.1)
     rows = finetune_rl(run, train_ds, val_ds, tmp_path / "rl", rl, progress=False)
     assert [r["selected"] for r in rows] == [True, False, False]
     before = StrategicPolicy.load(run).params

@@ -48,6 +48,7 @@ __all__ = [
     "evaluate_teacher",
     "paired_vs",
     "plot_distance_mass",
+    "pool_summaries",
     "plot_tour_comparison",
     "take",
     "write_tables",
@@ -108,6 +109,62 @@ def paired_vs(
     a = np.asarray(p[name]["rewards"]) / scale
     b = np.asarray(p[other]["rewards"]) / scale
     return paired_bootstrap_ci(a, b, seed=seed)
+
+
+def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """One summary over evaluations of the same model on disjoint ranges of held-out houses.
+
+    An evaluation's confidence interval narrows with its instance count; this pools runs
+    made at different times (``solver_eval.json`` dictionaries of :func:`evaluate_solvers`
+    with their ``house_seeds`` and ``checkpoint``) as if they were one run over all their
+    houses: per-instance rewards are concatenated, reward ratios are over the pooled VNS
+    mean reward, mean costs are instance-weighted. Only planners present in every run are
+    kept. Latencies were measured per run (possibly on a busier machine): the pooled
+    ``latency_ms_single`` is the instance-weighted mean of the runs' medians (ms) and the
+    speedup is recomputed from it.
+
+    Raises:
+        ValueError: no runs, a run without per-instance rewards, runs of different
+            checkpoints, presets or VNS configurations, or overlapping house ranges.
+    """
+    if not results:
+        raise ValueError("pool_summaries needs at least one evaluation")
+    first = results[0]
+    for key in ("checkpoint", "vns_config", "preset"):
+        values = {repr(r[key]) for r in results if key in r}  # runs before "preset": any
+        if len(values) > 1:
+            raise ValueError(f"evaluations of different {key}s cannot be pooled: {values}")
+    ranges = sorted(tuple(r["house_seeds"]) for r in results)
+    for (_, hi), (lo, _) in zip(ranges[:-1], ranges[1:], strict=True):
+        if lo < hi:
+            raise ValueError(f"evaluations with overlapping house ranges: {ranges}")
+    names = [n for n in first["planners"] if all(n in r["planners"] for r in results)]
+    counts = np.asarray([r["instances"] for r in results], float)
+    weights = counts / counts.sum()
+    planners: dict[str, dict[str, Any]] = {}
+    for name in names:
+        rows = [r["planners"][name] for r in results]
+        if any(len(row.get("rewards", ())) != n for row, n in zip(rows, counts, strict=True)):
+            raise ValueError(f"planner {name!r} lacks per-instance rewards in an evaluation")
+        rewards = [x for row in rows for x in row["rewards"]]
+        planners[name] = {
+            "mean_reward": float(np.mean(rewards)),
+            "mean_cost": float(np.dot(weights, [row["mean_cost"] for row in rows])),
+            "latency_ms_single": float(np.dot(weights, [row["latency_ms_single"] for row in rows])),
+            "rewards": rewards,
+        }
+    vns = planners["vns"]
+    for row in planners.values():
+        row["reward_ratio"] = row["mean_reward"] / max(vns["mean_reward"], 1e-12)
+        row["speedup"] = vns["latency_ms_single"] / max(row["latency_ms_single"], 1e-12)
+    return {
+        "instances": int(counts.sum()),
+        "preset": next((r["preset"] for r in results if "preset" in r), None),
+        "checkpoint": first["checkpoint"],
+        "vns_config": first["vns_config"],
+        "house_seeds": [list(r) for r in ranges],
+        "planners": planners,
+    }
 
 
 def _run_host_solver(fn, instances: SOPInstance, desc: str, progress: bool):

@@ -145,8 +145,15 @@ def make_rl_epoch(graphdef: nnx.GraphDef, rl: RLConfig, num_instances: int):
     teacher cross-entropy, valid teacher steps.
     """
     batch_size = min(rl.batch_size, num_instances)
+    # the epoch count is no part of the program: runs that differ in it (a finished run
+    # extended to more epochs) share one compilation
+    step_recipe = dataclasses.replace(rl, epochs=1)
     return functools.partial(
-        _rl_epoch, graphdef=graphdef, rl=rl, batch_size=batch_size, num_instances=num_instances
+        _rl_epoch,
+        graphdef=graphdef,
+        rl=step_recipe,
+        batch_size=batch_size,
+        num_instances=num_instances,
     )
 
 
