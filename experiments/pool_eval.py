@@ -6,8 +6,9 @@ Each ``RUN`` is the output directory of ``python -m experiments.distill --stage 
 (its ``solver_eval.json``), made with the same checkpoint and teacher configuration on
 house ranges that do not overlap. Extending an evaluation to more houses this way narrows
 the paired intervals without planning the old houses again. Writes ``DIR/solver_eval.json``
-(the pooled summary, per-instance rewards included) and ``DIR/tables.md`` (reward ratio,
-paired difference to greedy insertion with its 95 % bootstrap interval, latency).
+(the pooled summary, per-instance rewards included), ``DIR/tables.md`` (reward ratio,
+paired difference to greedy insertion with its 95 % bootstrap interval, latency) and
+``DIR/paired.png`` (each planner's paired difference in every run and in the pool).
 """
 
 from __future__ import annotations
@@ -18,8 +19,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.files import write_text
+from bfsop_jax.viz import plot_paired_differences
 
 EVAL_FILE = "solver_eval.json"
 
@@ -51,6 +55,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     text = header + solver_eval.compare_table({pooled["checkpoint"]: pooled["planners"]})
     write_text(out / "tables.md", text)
+    names = [n for n in pooled["planners"] if n not in ("vns", "greedy_insertion")]
+    groups = {
+        f"houses {r['house_seeds'][0]}..{r['house_seeds'][1] - 1} ({r['instances']})": [
+            solver_eval.paired_vs(r, n) for n in names
+        ]
+        for r in results
+    }
+    groups[f"pooled ({pooled['instances']})"] = [solver_eval.paired_vs(pooled, n) for n in names]
+    title = f"{pooled['instances']} held-out instances, {len(results)} evaluations"
+    plot_paired_differences(
+        names, {k: np.asarray(v) for k, v in groups.items()}, out / "paired.png", title
+    )
     print(text)
     return pooled
 

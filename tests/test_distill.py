@@ -129,6 +129,7 @@ def test_pooled_evaluations_equal_one_evaluation_of_all_houses(policy, batch, tm
     assert (d, lo, hi) == pytest.approx(solver_eval.paired_vs(whole, "transformer+2opt"), abs=1e-6)
     text = (tmp_path / "pooled" / "tables.md").read_text()
     assert "6 held-out instances of houses 0..3, 4..5" in text and f"{d:+.3f}" in text
+    assert (tmp_path / "pooled" / "paired.png").stat().st_size > 0  # runs and pool, drawn
     for bad, match in [
         ([parts[0], parts[0]], "overlapping house ranges"),
         ([parts[0], {**parts[1], "checkpoint": "other"}], "different checkpoints"),

@@ -5,7 +5,7 @@
 * :mod:`~bfsop_jax.viz.tours`: SOP tours of several planners, the decoder's distance mass;
 * :mod:`~bfsop_jax.viz.training`: the training curve, DAgger rounds;
 * :mod:`~bfsop_jax.viz.evaluation`: PPL per method and per category, the sweep chart,
-  models side by side (reward against latency).
+  models side by side (reward against latency), paired differences (forest plot).
 
 Each ``plot_*`` function draws one picture of one thing and saves it as a PNG when given a
 path (written atomically). The package imports no training or evaluation code (those
@@ -15,6 +15,7 @@ import it), and draws with the Agg backend, so it works without a display.
 from bfsop_jax.viz.evaluation import (
     plot_category_ppl,
     plot_model_comparison,
+    plot_paired_differences,
     plot_ppl,
     plot_sweep,
 )
@@ -31,6 +32,7 @@ __all__ = [
     "plot_distance_mass",
     "plot_house",
     "plot_model_comparison",
+    "plot_paired_differences",
     "plot_ppl",
     "plot_sweep",
     "plot_tour_comparison",

@@ -1,6 +1,7 @@
 """Evaluation charts: PPL per method, PPL per target category and method, the
 hyper-parameter sweep (reward / VNS per swept value) and several planners' reward against
-their latency (models side by side).
+their latency (models side by side), paired differences with their intervals (evaluations
+and their pool).
 """
 
 from __future__ import annotations
@@ -18,7 +19,13 @@ from bfsop_jax.viz.style import BLUE, RED, finish, method_colour, style_axes
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
-__all__ = ["plot_category_ppl", "plot_model_comparison", "plot_ppl", "plot_sweep"]
+__all__ = [
+    "plot_category_ppl",
+    "plot_model_comparison",
+    "plot_paired_differences",
+    "plot_ppl",
+    "plot_sweep",
+]
 
 
 def plot_ppl(
@@ -44,6 +51,42 @@ def plot_ppl(
         ax.text(xi, m / 2, f"{m:.3f}", ha="center", va="center", fontsize=8, color="white")
     ax.set_ylim(0, max(1e-3, float(np.nanmax(lo_hi[:, 1]))) * 1.15)
     return _finish_bars(fig, ax, x, labels, "PPL (mean, 95% bootstrap CI)", title, path)
+
+
+def plot_paired_differences(
+    planners: Sequence[str],
+    groups: Mapping[str, ArrayLike],
+    path: str | Path | None = None,
+    title: str | None = None,
+    xlabel: str = "reward / VNS minus greedy insertion's (paired, 95% CI)",
+) -> plt.Figure:
+    """Forest plot: each planner's paired difference to a reference with its interval, one
+    marker per group (e.g. each evaluation run and their pool) in rows; a line at 0.
+
+    Args: planners [p] row names; groups: label -> [p, 3] (difference, lo, hi) rows in
+    the order of ``planners`` (NaN rows are not drawn). The last group is drawn in black,
+    filled (the pooled estimate); the others hollow, in the method colours.
+    """
+    names = list(planners)
+    g = len(groups)
+    fig, ax = plt.subplots(figsize=(7.4, 0.2 * len(names) * (1 + 0.3 * g) + 1.6), dpi=110)
+    offsets = (np.arange(g) - (g - 1) / 2) * (0.7 / max(g, 1))
+    y = np.arange(len(names))[::-1].astype(float)
+    for i, (label, rows) in enumerate(groups.items()):
+        rows = np.asarray(rows, float).reshape(len(names), 3)
+        last = i == g - 1
+        colour = "black" if last else method_colour(i)
+        ok = np.isfinite(rows).all(axis=1)
+        err = np.stack([rows[ok, 0] - rows[ok, 1], rows[ok, 2] - rows[ok, 0]])
+        ax.errorbar(rows[ok, 0], y[ok] + offsets[i], xerr=err, fmt="o", color=colour,
+                    mfc=colour if last else "white", ms=5, capsize=3, lw=1.2 if last else 0.9,
+                    label=label)  # fmt: skip
+    ax.axvline(0.0, color=RED, lw=0.9, ls=":")
+    ax.set_yticks(y, names, fontsize=8)
+    style_axes(ax, xlabel=xlabel, title=title, title_size=10, grid="x")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=min(g, 3),
+              frameon=False)  # fmt: skip
+    return finish(fig, path)
 
 
 def _finish_bars(fig, ax, x, ticks, ylabel, title, path) -> plt.Figure:
