@@ -108,7 +108,9 @@ def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
     assert not out.exists()
 
 
-def test_scan_runs_only_the_grids_of_the_given_methods(tmp_path):
+def test_scan_runs_only_the_grids_of_the_given_methods(tmp_path, monkeypatch):
+    # two of BFS-Global's settings (each setting is its own compiled rollout)
+    monkeypatch.setitem(evaluate.SCAN_GRID, "bfs_global", evaluate.SCAN_GRID["bfs_global"][1:3])
     args = ["--scan", "--preset", "smoke", "--house-seeds", "2000000:2000001", "--categories",
             "HousePlant", "--batch", "1", "--no-progress"]  # fmt: skip
     rows = evaluate.main(args + ["--methods", "bfs_global", "--out", str(tmp_path)])
