@@ -48,8 +48,8 @@ __all__ = [
     "evaluate_teacher",
     "paired_vs",
     "plot_distance_mass",
-    "pool_summaries",
     "plot_tour_comparison",
+    "pool_summaries",
     "take",
     "write_tables",
 ]
@@ -124,12 +124,14 @@ def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
     speedup is recomputed from it.
 
     Raises:
-        ValueError: no runs, a run without per-instance rewards, runs of different
+        ValueError: no runs, a run without house seeds or per-instance rewards, runs of different
             checkpoints, presets or VNS configurations, or overlapping house ranges.
     """
     if not results:
         raise ValueError("pool_summaries needs at least one evaluation")
     first = results[0]
+    if not all("house_seeds" in r for r in results):
+        raise ValueError("an evaluation without house_seeds cannot be pooled (whose houses?)")
     for key in ("checkpoint", "vns_config", "preset"):
         values = {repr(r[key]) for r in results if key in r}  # runs before "preset": any
         if len(values) > 1:
