@@ -10,7 +10,9 @@ Host-side post-processing of recorded episodes, in plain NumPy (no JAX):
 * :func:`revisit_fraction` -- the share of the travelled length spent moving into planning
   cells that were already visited.
 * :func:`bootstrap_ci` and :func:`paired_bootstrap_ci` -- seeded percentile bootstrap
-  intervals of a mean over episodes, and of a paired difference of means.
+  intervals of a mean over episodes, and of a paired difference of means; with ``groups``
+  (e.g. the house of each episode) whole groups are resampled (a cluster bootstrap), the
+  interval for new groups rather than for new episodes of the same groups.
 """
 
 from __future__ import annotations
@@ -353,25 +355,50 @@ def _validate_boot(values: ArrayLike, n_boot: int, level: float, name: str) -> n
     return v
 
 
-def _boot_interval(v: np.ndarray, n_boot: int, level: float, seed: int) -> tuple[float, float]:
+def _validate_groups(groups: ArrayLike | None, n: int) -> np.ndarray | None:
+    """Group labels ``[N]`` -> group index ``[N]`` in ``0..G-1`` (None passes through)."""
+    if groups is None:
+        return None
+    g = np.asarray(groups).reshape(-1) if np.ndim(groups) else np.asarray([groups])
+    if g.size != n:
+        raise ValueError(f"groups must give one label per value: {g.size} labels, {n} values")
+    _, index = np.unique(g, return_inverse=True)
+    if index.max() < 1:
+        raise ValueError("groups must hold at least two distinct labels to resample groups")
+    return index.reshape(-1)
+
+
+def _boot_interval(
+    v: np.ndarray, n_boot: int, level: float, seed: int, groups: np.ndarray | None = None
+) -> tuple[float, float]:
     if np.all(v == v[0]):
         x = float(v[0])
         return x, x
-    n = v.size
     rng = np.random.default_rng(seed)
+    if groups is not None:  # per-group sums and sizes; a resample draws whole groups
+        sums = np.bincount(groups, weights=v)
+        counts = np.bincount(groups).astype(np.float64)
+    n = v.size if groups is None else sums.size
     rows = max(1, _BOOT_CHUNK // n)
     means = np.empty(n_boot)
     for s in range(0, n_boot, rows):
         e = min(n_boot, s + rows)
         idx = rng.integers(0, n, size=(e - s, n))
-        means[s:e] = v[idx].mean(axis=1)
+        if groups is None:
+            means[s:e] = v[idx].mean(axis=1)
+        else:
+            means[s:e] = sums[idx].sum(axis=1) / counts[idx].sum(axis=1)
     alpha = (1.0 - level) / 2.0
     lo, hi = np.quantile(means, [alpha, 1.0 - alpha])
     return float(lo), float(hi)
 
 
 def bootstrap_ci(
-    values: ArrayLike, n_boot: int = 2000, level: float = 0.95, seed: int = 0
+    values: ArrayLike,
+    n_boot: int = 2000,
+    level: float = 0.95,
+    seed: int = 0,
+    groups: ArrayLike | None = None,
 ) -> tuple[float, float]:
     """Percentile bootstrap interval of the mean over episodes.
 
@@ -380,20 +407,32 @@ def bootstrap_ci(
       n_boot: number of bootstrap resamples (episodes drawn with replacement, N per resample).
       level: coverage of the interval, in (0, 1).
       seed: seed of ``np.random.default_rng``; the result is deterministic for a seed.
+      groups: optional ``[N]`` label of each episode's group (e.g. its house). Then the G
+        groups are drawn with replacement (G per resample) and each resample's statistic is
+        the mean over all episodes of its drawn groups: a cluster bootstrap, whose interval
+        holds for new groups, not only for new episodes of the same groups (wider when
+        episodes of one group are alike). Needs at least two groups.
 
     Returns:
       ``(lo, hi)`` in the units of ``values``; ``(v, v)`` when all values equal ``v`` (in
       particular for a single value).
 
     Raises:
-      ValueError: empty, non-1-D or non-finite ``values``; bad ``n_boot`` or ``level``.
+      ValueError: empty, non-1-D or non-finite ``values``; bad ``n_boot`` or ``level``;
+        ``groups`` not one label per value or with fewer than two labels.
     """
     v = _validate_boot(values, n_boot, level, "values")
-    return _boot_interval(v, int(n_boot), float(level), seed)
+    g = _validate_groups(groups, v.size)
+    return _boot_interval(v, int(n_boot), float(level), seed, g)
 
 
 def paired_bootstrap_ci(
-    a: ArrayLike, b: ArrayLike, n_boot: int = 2000, level: float = 0.95, seed: int = 0
+    a: ArrayLike,
+    b: ArrayLike,
+    n_boot: int = 2000,
+    level: float = 0.95,
+    seed: int = 0,
+    groups: ArrayLike | None = None,
 ) -> tuple[float, float, float]:
     """Paired difference of means ``mean(a - b)`` with a percentile bootstrap interval.
 
@@ -402,22 +441,24 @@ def paired_bootstrap_ci(
 
     Args:
       a, b: ``[N]`` per-episode values of two methods on the same episodes.
-      n_boot, level, seed: as in :func:`bootstrap_ci`.
+      n_boot, level, seed, groups: as in :func:`bootstrap_ci` (with ``groups`` whole groups
+        of paired episodes are resampled).
 
     Returns:
       ``(mean_diff, lo, hi)`` in the units of the inputs. When ``a - b`` is constant the three
       values equal that constant exactly.
 
     Raises:
-      ValueError: lengths differ, or an input is empty, non-1-D or non-finite.
+      ValueError: lengths differ, or an input is empty, non-1-D or non-finite; bad ``groups``.
     """
     av = _validate_boot(a, n_boot, level, "a")
     bv = _validate_boot(b, n_boot, level, "b")
     if av.shape != bv.shape:
         raise ValueError(f"a and b must have the same length, got {av.size} and {bv.size}")
+    g = _validate_groups(groups, av.size)
     diff = av - bv
     if np.all(diff == diff[0]):
         x = float(diff[0])
         return x, x, x
-    lo, hi = _boot_interval(diff, int(n_boot), float(level), seed)
+    lo, hi = _boot_interval(diff, int(n_boot), float(level), seed, g)
     return float(diff.mean()), lo, hi

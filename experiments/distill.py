@@ -503,6 +503,16 @@ def preset_planners(preset: DistillPreset, compare: bool = False) -> dict[str, d
     return {name: solver_eval.PLANNERS[name] for name in names}
 
 
+def eval_instances(
+    preset: DistillPreset, lo: int, hi: int, tasks: int, progress: bool = True
+) -> tuple[Any, np.ndarray]:
+    """The held-out instances an evaluation of houses ``lo..hi-1`` plans: ``tasks`` virtual
+    tasks posed per house (those without a rewarding set dropped), and the house seed of each
+    instance ``[I]``. Deterministic in its arguments."""
+    cfg = dataclasses.replace(preset.data, tasks_per_house=tasks)
+    return pose_tasks(np.arange(lo, hi), cfg, progress=progress)
+
+
 def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any] | None) -> dict:
     checkpoint = Path(args.checkpoint) if args.checkpoint else out
     if args.eval_seeds:
@@ -512,10 +522,9 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
             print(f"warning: eval seeds below {EVAL_SEED_START} may be training houses")
     else:
         lo, hi = EVAL_SEED_START, EVAL_SEED_START + preset.eval_houses
-    seeds = np.arange(lo, hi)
-    cfg = dataclasses.replace(preset.data, tasks_per_house=args.eval_tasks or preset.eval_tasks)
+    tasks = args.eval_tasks or preset.eval_tasks
     policy = StrategicPolicy.load(checkpoint)
-    instances, owners = pose_tasks(seeds, cfg, progress=not args.no_progress)
+    instances, owners = eval_instances(preset, lo, hi, tasks, progress=not args.no_progress)
     n = int(owners.shape[0])
     print(f"evaluation: {n} instances from houses {lo}..{hi - 1}")
     evaluation = solver_eval.evaluate_solvers(
@@ -523,6 +532,8 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     )
     result = evaluation.summary
     result["house_seeds"] = [int(lo), int(hi)]
+    result["tasks_per_house"] = int(tasks)
+    result["instance_houses"] = [int(h) for h in owners]  # paired intervals over houses
     result["preset"] = args.preset
     result["checkpoint"] = str(checkpoint)
     result["machine"] = f"{platform.machine()}, {os.cpu_count()} CPU cores, {jax.default_backend()}"
@@ -563,7 +574,9 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     )
     text = solver_eval.write_tables(result, out / "tables.md", ablation_rows, header)
     if args.compare:
-        text += solver_eval.compare_table(result["compare"], compare_planners)
+        text += solver_eval.compare_table(
+            result["compare"], compare_planners, result["instance_houses"]
+        )
         files.write_text(out / "tables.md", text)
         title = f"{args.preset}: {n} held-out instances of houses {lo}..{hi - 1}"
         plot_model_comparison(result["compare"], out / "compare.png", compare_planners, title)

@@ -9,6 +9,13 @@ the paired intervals without planning the old houses again. Writes ``DIR/solver_
 (the pooled summary, per-instance rewards included), ``DIR/tables.md`` (reward ratio,
 paired difference to greedy insertion with its 95 % bootstrap interval, latency) and
 ``DIR/paired.png`` (each planner's paired difference in every run and in the pool).
+
+When every run records the house of each instance (runs made since it is recorded, or
+with ``--recover-houses``), the pooled table and figure add the paired interval over
+houses: whole houses resampled, the interval for other houses rather than for other tasks
+in the same houses. ``--recover-houses`` re-poses an older run's tasks (exploration runs
+only, no planning), checks that greedy insertion's reward on them equals the recorded one
+instance for instance, and adds the houses to that run's ``solver_eval.json``.
 """
 
 from __future__ import annotations
@@ -28,10 +35,54 @@ from bfsop_jax.viz import plot_paired_differences
 EVAL_FILE = "solver_eval.json"
 
 
+def recover_houses(result: dict[str, Any], progress: bool = True) -> list[int]:
+    """The house seed of each instance ``[I]`` of an evaluation that did not record them.
+
+    Re-poses its tasks (same preset, houses and tasks per house; deterministic) and checks
+    that they are the evaluated instances: same count, and greedy insertion (deterministic)
+    reaches the recorded reward on every one.
+
+    Raises:
+        ValueError: no preset recorded, or the re-posed instances differ.
+    """
+    from bfsop_jax.sop import solve_greedy
+    from experiments import distill
+
+    if "preset" not in result:
+        raise ValueError("an evaluation without its preset: cannot re-pose its tasks")
+    preset = distill.PRESETS[result["preset"]]
+    lo, hi = result["house_seeds"]
+    tasks = result.get("tasks_per_house", preset.eval_tasks)
+    instances, owners = distill.eval_instances(preset, lo, hi, tasks, progress=progress)
+    if owners.shape[0] != result["instances"]:
+        raise ValueError(
+            f"re-posed {owners.shape[0]} instances of houses {lo}..{hi - 1}, the evaluation "
+            f"has {result['instances']}: not the same tasks"
+        )
+    recorded = np.asarray(result["planners"]["greedy_insertion"]["rewards"])
+    replanned = np.asarray(
+        [float(solve_greedy(solver_eval.take(instances, i)).reward) for i in range(owners.shape[0])]
+    )
+    bad = np.flatnonzero(np.abs(replanned - recorded) > 1e-5)
+    if bad.size:
+        raise ValueError(
+            f"greedy insertion differs on {bad.size} re-posed instances (first: {bad[0]}): "
+            "not the same tasks"
+        )
+    return [int(h) for h in owners]
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", help="evaluation directories (solver_eval.json)")
     parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument(
+        "--recover-houses",
+        action="store_true",
+        help="re-pose the tasks of runs that lack per-instance houses (checked against their "
+        "greedy insertion rewards) and add the houses to their solver_eval.json",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     results = []
     for run in args.runs:
@@ -39,6 +90,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if not path.is_file():
             parser.error(f"no {EVAL_FILE} in {run}")
         results.append(json.loads(path.read_text()))
+    for run, result in zip(args.runs, results, strict=True):
+        if args.recover_houses and "instance_houses" not in result:
+            try:
+                result["instance_houses"] = recover_houses(result, not args.no_progress)
+            except ValueError as err:
+                parser.error(f"{run}: {err}")
+            solver_eval.write_json(result, Path(run) / EVAL_FILE)
+            print(f"{run}: per-instance houses recovered and recorded")
     try:
         pooled = solver_eval.pool_summaries(results)
     except ValueError as err:
@@ -53,7 +112,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"{ranges} ({len(results)} runs). Checkpoint: `{pooled['checkpoint']}`. Latency: "
         "instance-weighted mean of the runs' medians.\n"
     )
-    text = header + solver_eval.compare_table({pooled["checkpoint"]: pooled["planners"]})
+    houses = pooled.get("instance_houses")
+    if houses is None:
+        header += "No per-instance houses in every run: intervals over instances only.\n"
+    else:
+        header += (
+            f"{len(set(houses))} houses; 'CI over houses' resamples whole houses (the "
+            "interval for other houses).\n"
+        )
+    text = header + solver_eval.compare_table(
+        {pooled["checkpoint"]: pooled["planners"]}, instance_houses=houses
+    )
     write_text(out / "tables.md", text)
     names = [n for n in pooled["planners"] if n not in ("vns", "greedy_insertion")]
     groups = {
@@ -63,6 +132,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for r in results
     }
     groups[f"pooled ({pooled['instances']})"] = [solver_eval.paired_vs(pooled, n) for n in names]
+    if houses is not None:
+        groups[f"pooled, houses resampled ({len(set(houses))})"] = [
+            solver_eval.paired_vs(pooled, n, by_house=True) for n in names
+        ]
     title = f"{pooled['instances']} held-out instances, {len(results)} evaluations"
     plot_paired_differences(
         names, {k: np.asarray(v) for k, v in groups.items()}, out / "paired.png", title

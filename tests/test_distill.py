@@ -99,24 +99,55 @@ def test_evaluate_solvers_reports_every_planner(policy, batch, tmp_path):
     assert (tmp_path / "compare.png").stat().st_size > 0
 
 
-def test_pooled_evaluations_equal_one_evaluation_of_all_houses(policy, batch, tmp_path):
+def test_pooled_evaluations_equal_one_evaluation_of_all_houses(
+    policy, batch, tmp_path, monkeypatch
+):
     """Two runs on disjoint house ranges pool into the summary one run of both would give
-    (means, ratios, paired interval); mismatched runs are refused."""
-    from experiments import pool_eval
+    (means, ratios, paired intervals over instances and over houses); the houses of a run
+    that did not record them are recovered by re-posing its tasks, and checked; mismatched
+    runs are refused."""
+    from experiments import distill, pool_eval
 
     planners = {"transformer+2opt": {"two_opt": True}}
     kw = dict(vns_kwargs={"max_iters": 50, "max_no_improve": 20}, planners=planners,
               batch_size=2, repeats=1, progress=False)  # fmt: skip
-    whole = solver_eval.evaluate_solvers(policy, batch, **kw).summary
+    houses = [10, 10, 11, 12, 13, 13]  # two instances in houses 10 and 13 (the runs' 0..3, 4..5)
+    whole = {**solver_eval.evaluate_solvers(policy, batch, **kw).summary, "instance_houses": houses}
     parts = []
     for i, (lo, hi) in enumerate([(0, 4), (4, 6)]):
         part = solver_eval.evaluate_solvers(policy, solver_eval.take(batch, slice(lo, hi)), **kw)
-        summary = {**part.summary, "house_seeds": [lo, hi], "checkpoint": "m", "preset": "x"}
+        summary = {**part.summary, "house_seeds": [lo, hi], "checkpoint": "m", "preset": "demo"}
+        if i == 0:
+            summary["instance_houses"] = houses[lo:hi]
         (tmp_path / f"run{i}").mkdir()
         solver_eval.write_json(summary, tmp_path / f"run{i}" / "solver_eval.json")
         parts.append(summary)
-    pooled = pool_eval.main([str(tmp_path / "run0"), str(tmp_path / "run1"),
-                             "--out", str(tmp_path / "pooled")])  # fmt: skip
+    args = [str(tmp_path / "run0"), str(tmp_path / "run1"), "--out", str(tmp_path / "pooled")]
+    pooled = pool_eval.main(args)  # run1 has no houses: intervals over instances only
+    assert "instance_houses" not in pooled and "CI over houses" not in (
+        tmp_path / "pooled" / "tables.md"
+    ).read_text()
+
+    def repose(preset, lo, hi, tasks, progress=True):  # stands in for the exploration runs
+        assert (preset, lo, hi, tasks) == (distill.PRESETS["demo"], 4, 6, 24)
+        return solver_eval.take(batch, slice(4, 6)), np.asarray(houses[4:6])
+
+    monkeypatch.setattr(distill, "eval_instances", repose)
+    pooled = pool_eval.main([*args, "--recover-houses", "--no-progress"])
+    saved = json.loads((tmp_path / "run1" / "solver_eval.json").read_text())
+    assert saved["instance_houses"] == houses[4:6]  # recorded in the run for next time
+    assert pooled["instance_houses"] == houses
+    by_house = solver_eval.paired_vs(pooled, "transformer+2opt", by_house=True)
+    assert by_house == pytest.approx(
+        solver_eval.paired_vs(whole, "transformer+2opt", by_house=True), abs=1e-6
+    )
+    assert "CI over houses" in (tmp_path / "pooled" / "tables.md").read_text()
+    other_tasks = (solver_eval.take(batch, slice(0, 2)), np.zeros(2))  # greedy differs there
+    monkeypatch.setattr(distill, "eval_instances", lambda *a, **k: other_tasks)
+    with pytest.raises(ValueError, match="greedy insertion differs"):
+        pool_eval.recover_houses(parts[1], progress=False)
+    with pytest.raises(ValueError, match="cannot resample houses"):
+        solver_eval.paired_vs(parts[1], "transformer+2opt", by_house=True)
     assert pooled["instances"] == 6 and pooled["house_seeds"] == [[0, 4], [4, 6]]
     for name in ("vns", "greedy_insertion", "transformer+2opt"):
         a, b = pooled["planners"][name], whole["planners"][name]
@@ -175,6 +206,8 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
         assert (run / name).is_file(), name
     ev = json.loads((run / "solver_eval.json").read_text())
     assert ev["instances"] > 0 and ev["planners"]["transformer+2opt"]["speedup"] > 0
+    assert len(ev["instance_houses"]) == ev["instances"]  # intervals over houses possible
+    assert set(ev["instance_houses"]) <= set(range(*ev["house_seeds"]))
     assert summary["solver_eval"]["instances"] == ev["instances"]
     # the run ends with the navigation evaluation (reduced Table I protocol)
     assert (run / "navigation" / "results.json").is_file()

@@ -267,3 +267,29 @@ def test_paired_bootstrap() -> None:
     assert paired_bootstrap_ci(c, a) == (m, lo, hi)
     with pytest.raises(ValueError):
         paired_bootstrap_ci(a, a[:-1])
+
+
+def test_bootstrap_over_groups_resamples_whole_groups() -> None:
+    """With one label per value the group bootstrap is the plain one; when values within a
+    group are alike, resampling groups gives the (wider) interval of a few group means, and
+    it matches a plain bootstrap of those means when groups are of equal size."""
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=40)
+    np.testing.assert_allclose(bootstrap_ci(v, groups=np.arange(40)), bootstrap_ci(v))
+    means = rng.normal(0.0, 1.0, size=6)
+    clustered = np.repeat(means, 25) + rng.normal(0.0, 0.01, size=150)
+    houses = np.repeat(np.arange(100, 106), 25)
+    lo, hi = bootstrap_ci(clustered, groups=houses)
+    plo, phi = bootstrap_ci(clustered)
+    assert hi - lo > 3 * (phi - plo)  # 150 near-copies of 6 values are 6 values
+    glo, ghi = bootstrap_ci(clustered.reshape(6, 25).mean(axis=1))
+    assert (lo, hi) == pytest.approx((glo, ghi), abs=1e-9)
+    assert bootstrap_ci(clustered, groups=houses) == (lo, hi)  # seeded
+    order = rng.permutation(150)  # labels, not positions, define the groups
+    assert bootstrap_ci(clustered[order], groups=houses[order]) == pytest.approx((lo, hi))
+    d, dlo, dhi = paired_bootstrap_ci(clustered + 0.2, clustered, groups=houses)
+    assert (d, dlo, dhi) == pytest.approx((0.2, 0.2, 0.2))
+    with pytest.raises(ValueError, match="one label per value"):
+        bootstrap_ci(v, groups=np.arange(39))
+    with pytest.raises(ValueError, match="at least two distinct labels"):
+        paired_bootstrap_ci(v, v + rng.normal(size=40), groups=np.zeros(40))

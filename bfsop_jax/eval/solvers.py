@@ -99,16 +99,31 @@ def _summary(rewards: list[float], costs: list[float], single_ms: list[float]) -
 
 
 def paired_vs(
-    result: dict[str, Any], name: str, other: str = "greedy_insertion", seed: int = 0
+    result: dict[str, Any],
+    name: str,
+    other: str = "greedy_insertion",
+    seed: int = 0,
+    by_house: bool = False,
 ) -> tuple[float, float, float]:
     """Paired reward difference of planner ``name`` over ``other`` on the same instances,
     in units of the VNS's mean reward (so it reads as a difference of reward ratios):
-    ``(mean, lo, hi)`` with a 95 % percentile bootstrap interval over instances."""
+    ``(mean, lo, hi)`` with a 95 % percentile bootstrap interval over instances, or with
+    ``by_house`` over houses (whole houses resampled, using ``result["instance_houses"]``:
+    the interval for other houses, not only for other tasks in the same houses).
+
+    Raises:
+        ValueError: ``by_house`` on a result without per-instance houses.
+    """
     p = result["planners"]
     scale = max(p["vns"]["mean_reward"], 1e-12)
     a = np.asarray(p[name]["rewards"]) / scale
     b = np.asarray(p[other]["rewards"]) / scale
-    return paired_bootstrap_ci(a, b, seed=seed)
+    groups = None
+    if by_house:
+        if "instance_houses" not in result:
+            raise ValueError("no instance_houses in this evaluation: cannot resample houses")
+        groups = result["instance_houses"]
+    return paired_bootstrap_ci(a, b, seed=seed, groups=groups)
 
 
 def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -121,7 +136,8 @@ def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
     mean reward, mean costs are instance-weighted. Only planners present in every run are
     kept. Latencies were measured per run (possibly on a busier machine): the pooled
     ``latency_ms_single`` is the instance-weighted mean of the runs' medians (ms) and the
-    speedup is recomputed from it.
+    speedup is recomputed from it. Per-instance houses (``instance_houses``) are pooled when
+    every run has them.
 
     Raises:
         ValueError: no runs, a run without house seeds or per-instance rewards, runs of different
@@ -159,7 +175,7 @@ def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
     for row in planners.values():
         row["reward_ratio"] = row["mean_reward"] / max(vns["mean_reward"], 1e-12)
         row["speedup"] = vns["latency_ms_single"] / max(row["latency_ms_single"], 1e-12)
-    return {
+    pooled = {
         "instances": int(counts.sum()),
         "preset": next((r["preset"] for r in results if "preset" in r), None),
         "checkpoint": first["checkpoint"],
@@ -167,6 +183,9 @@ def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
         "house_seeds": [list(r) for r in ranges],
         "planners": planners,
     }
+    if all("instance_houses" in r for r in results):
+        pooled["instance_houses"] = [h for r in results for h in r["instance_houses"]]
+    return pooled
 
 
 def _run_host_solver(fn, instances: SOPInstance, desc: str, progress: bool):
@@ -431,7 +450,9 @@ def decoder_distance_mass(policy, instances: SOPInstance, batch: int = 64) -> np
 
 
 def compare_table(
-    models: dict[str, dict[str, Any]], planners: dict[str, dict[str, Any]] | None = None
+    models: dict[str, dict[str, Any]],
+    planners: dict[str, dict[str, Any]] | None = None,
+    instance_houses: list[int] | None = None,
 ) -> str:
     """Markdown table of several models on the same instances and teacher plans.
 
@@ -439,10 +460,13 @@ def compare_table(
         models: model label -> the ``planners`` dictionary of its evaluation summary (each
             holds ``vns`` and ``greedy_insertion`` of the same instances).
         planners: the planner rows to show (default: every planner the models share).
+        instance_houses: ``[I]`` house seed of each instance; adds a column with the paired
+            interval over houses (whole houses resampled).
 
     Each row gives the reward ratio to the VNS, the paired difference to greedy insertion
-    on the same instances (in reward-ratio units, 95 % bootstrap interval), the median
-    single-instance latency and the speedup over the VNS.
+    on the same instances (in reward-ratio units, 95 % bootstrap interval over instances,
+    and over houses when given), the median single-instance latency and the speedup over
+    the VNS.
     """
     first = next(iter(models.values()))
     names = list(planners or [n for n in first if n not in ("vns", "greedy_insertion")])
@@ -456,8 +480,9 @@ def compare_table(
         f" at {g['latency_ms_single']:.1f} ms.",
         "",
         "| model | planner | reward / VNS | minus greedy insertion [95% CI] "
-        "| latency single (ms) | speedup vs VNS |",
-        "|---|---|---|---|---|---|",
+        + ("| CI over houses " if instance_houses is not None else "")
+        + "| latency single (ms) | speedup vs VNS |",
+        "|---|---|---|---|---|---|" + ("---|" if instance_houses is not None else ""),
     ]
     for label, p in models.items():
         for name in names:
@@ -465,8 +490,13 @@ def compare_table(
                 continue
             d, lo, hi = paired_vs({"planners": p}, name)
             row = p[name]
+            by_house = ""
+            if instance_houses is not None:
+                houses = {"planners": p, "instance_houses": instance_houses}
+                _, hlo, hhi = paired_vs(houses, name, by_house=True)
+                by_house = f"| [{hlo:+.3f}, {hhi:+.3f}] "
             lines.append(
                 f"| {label} | {name} | {row['reward_ratio']:.3f} | {d:+.3f} [{lo:+.3f}, {hi:+.3f}] "
-                f"| {row['latency_ms_single']:.2f} | {row['speedup']:.0f}x |"
+                f"{by_house}| {row['latency_ms_single']:.2f} | {row['speedup']:.0f}x |"
             )
     return "\n".join(lines) + "\n"
