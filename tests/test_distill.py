@@ -124,9 +124,10 @@ def test_pooled_evaluations_equal_one_evaluation_of_all_houses(
         parts.append(summary)
     args = [str(tmp_path / "run0"), str(tmp_path / "run1"), "--out", str(tmp_path / "pooled")]
     pooled = pool_eval.main(args)  # run1 has no houses: intervals over instances only
-    assert "instance_houses" not in pooled and "CI over houses" not in (
-        tmp_path / "pooled" / "tables.md"
-    ).read_text()
+    assert (
+        "instance_houses" not in pooled
+        and "CI over houses" not in (tmp_path / "pooled" / "tables.md").read_text()
+    )
 
     def repose(preset, lo, hi, tasks, progress=True):  # stands in for the exploration runs
         assert (preset, lo, hi, tasks) == (distill.PRESETS["demo"], 4, 6, 24)
