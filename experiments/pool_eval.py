@@ -30,30 +30,33 @@ import numpy as np
 
 from bfsop_jax.eval import solvers as solver_eval
 from bfsop_jax.files import write_text
+from bfsop_jax.sop import solve_greedy
 from bfsop_jax.viz import plot_paired_differences
+from experiments import distill
 
 EVAL_FILE = "solver_eval.json"
 
 
-def recover_houses(result: dict[str, Any], progress: bool = True) -> list[int]:
+def recover_houses(
+    result: dict[str, Any], progress: bool = True, preset: str | None = None
+) -> list[int]:
     """The house seed of each instance ``[I]`` of an evaluation that did not record them.
 
     Re-poses its tasks (same preset, houses and tasks per house; deterministic) and checks
     that they are the evaluated instances: same count, and greedy insertion (deterministic)
-    reaches the recorded reward on every one.
+    reaches the recorded reward on every one. ``preset`` names the preset of a run made
+    before evaluations recorded it.
 
     Raises:
-        ValueError: no preset recorded, or the re-posed instances differ.
+        ValueError: no preset recorded or given, or the re-posed instances differ.
     """
-    from bfsop_jax.sop import solve_greedy
-    from experiments import distill
-
-    if "preset" not in result:
-        raise ValueError("an evaluation without its preset: cannot re-pose its tasks")
-    preset = distill.PRESETS[result["preset"]]
+    name = result.get("preset", preset)
+    if name is None:
+        raise ValueError("an evaluation without its preset: pass --preset to re-pose its tasks")
+    config = distill.PRESETS[name]
     lo, hi = result["house_seeds"]
-    tasks = result.get("tasks_per_house", preset.eval_tasks)
-    instances, owners = distill.eval_instances(preset, lo, hi, tasks, progress=progress)
+    tasks = result.get("tasks_per_house", config.eval_tasks)
+    instances, owners = distill.eval_instances(config, lo, hi, tasks, progress=progress)
     if owners.shape[0] != result["instances"]:
         raise ValueError(
             f"re-posed {owners.shape[0]} instances of houses {lo}..{hi - 1}, the evaluation "
@@ -82,6 +85,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="re-pose the tasks of runs that lack per-instance houses (checked against their "
         "greedy insertion rewards) and add the houses to their solver_eval.json",
     )
+    parser.add_argument(
+        "--preset",
+        choices=sorted(distill.PRESETS),
+        help="with --recover-houses: the preset of runs that do not record theirs",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     results = []
@@ -93,7 +101,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for run, result in zip(args.runs, results, strict=True):
         if args.recover_houses and "instance_houses" not in result:
             try:
-                result["instance_houses"] = recover_houses(result, not args.no_progress)
+                result["instance_houses"] = recover_houses(
+                    result, not args.no_progress, args.preset
+                )
+                result.setdefault("preset", args.preset)
             except ValueError as err:
                 parser.error(f"{run}: {err}")
             solver_eval.write_json(result, Path(run) / EVAL_FILE)
