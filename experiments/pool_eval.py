@@ -124,7 +124,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "instance-weighted mean of the runs' medians.\n"
     )
     houses = pooled.get("instance_houses")
-    if houses is None:
+    if houses is not None and len(set(houses)) < 2:
+        houses = None
+        header += "One house: intervals over instances only.\n"
+    elif houses is None:
         header += "No per-instance houses in every run: intervals over instances only.\n"
     else:
         header += (

@@ -66,6 +66,8 @@ def test_table1_outputs(table1):
             assert r["switches"] == 0 and r["planner_calls"] == 0
     text = (out / "table1.md").read_text()
     assert "BF-SOP (Transformer) - " in text and "[95% CI]" in text
+    _, hlo, hhi = nav.paired(saved["episodes"], "bfsop_st", "fbe", by_house=True)  # 2+ houses
+    assert "over houses [95% CI]" in text and f"| [{hlo:+.3f}, {hhi:+.3f}] |" in text
 
 
 def test_resume_reuses_finished_chunks(table1):

@@ -602,15 +602,22 @@ def summarise(records: Iterable[dict[str, Any]], methods: Sequence[str]) -> dict
     return out
 
 
-def paired(records: Sequence[dict[str, Any]], a: str, b: str) -> tuple[float, float, float]:
-    """Paired bootstrap (mean, lo, hi) of PPL(a) - PPL(b) over their shared episodes."""
+def paired(
+    records: Sequence[dict[str, Any]], a: str, b: str, by_house: bool = False
+) -> tuple[float, float, float]:
+    """Paired bootstrap (mean, lo, hi) of PPL(a) - PPL(b) over their shared episodes; with
+    ``by_house`` whole houses are resampled (the interval for other houses; needs episodes
+    in at least two houses)."""
     key = lambda r: (r["house_seed"], r["category"])
     pa = {key(r): r["ppl"] for r in records if r["method"] == a}
     pb = {key(r): r["ppl"] for r in records if r["method"] == b}
     shared = sorted(set(pa) & set(pb))
     if not shared:
         raise ValueError(f"methods {a} and {b} share no episode")
-    return metrics.paired_bootstrap_ci([pa[k] for k in shared], [pb[k] for k in shared])
+    groups = [k[0] for k in shared] if by_house else None
+    return metrics.paired_bootstrap_ci(
+        [pa[k] for k in shared], [pb[k] for k in shared], groups=groups
+    )
 
 
 __all__ += ["paired"]
@@ -654,16 +661,23 @@ def write_table1(result: dict[str, Any], path: str | os.PathLike, header: str = 
         best = max(baselines, key=lambda m: methods[m]["ppl_mean"])
         comparisons.append(("bfsop_vns", best, "best baseline"))
     if comparisons:
+        several = len({r["house_seed"] for r in episodes}) > 1
         lines += [
-            "", "Paired differences (bootstrap over shared episodes, 95% CI):", "",
-            "| comparison | PPL difference [95% CI] | PPL ratio |", "|---|---|---|",
+            "", "Paired differences (bootstrap over shared episodes, 95% CI; over houses: "
+            "whole houses resampled, the interval for other houses):", "",
+            "| comparison | PPL difference [95% CI] | over houses [95% CI] | PPL ratio |",
+            "|---|---|---|---|",
         ]  # fmt: skip
         for a, b, what in comparisons:
             d, lo, hi = paired(episodes, a, b)
+            house = "-"
+            if several:
+                _, hlo, hhi = paired(episodes, a, b, by_house=True)
+                house = f"[{hlo:+.3f}, {hhi:+.3f}]"
             ratio = methods[a]["ppl_mean"] / max(methods[b]["ppl_mean"], 1e-12)
             lines.append(
                 f"| {LABELS[a]} - {LABELS[b]} ({what}) | {d:+.3f} [{lo:+.3f}, {hi:+.3f}] "
-                f"| {ratio:.2f}x |"
+                f"| {house} | {ratio:.2f}x |"
             )
     text = "\n".join(lines) + "\n"
     files.write_text(path, text)

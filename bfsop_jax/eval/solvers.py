@@ -461,7 +461,7 @@ def compare_table(
             holds ``vns`` and ``greedy_insertion`` of the same instances).
         planners: the planner rows to show (default: every planner the models share).
         instance_houses: ``[I]`` house seed of each instance; adds a column with the paired
-            interval over houses (whole houses resampled).
+            interval over houses (whole houses resampled) when they hold two houses or more.
 
     Each row gives the reward ratio to the VNS, the paired difference to greedy insertion
     on the same instances (in reward-ratio units, 95 % bootstrap interval over instances,
@@ -470,6 +470,8 @@ def compare_table(
     """
     first = next(iter(models.values()))
     names = list(planners or [n for n in first if n not in ("vns", "greedy_insertion")])
+    if instance_houses is not None and len(set(instance_houses)) < 2:
+        instance_houses = None  # one house: nothing to resample
     g = first["greedy_insertion"]
     vns = first["vns"]
     lines = [
