@@ -23,6 +23,13 @@ from bfsop_jax.navigation import (
     true_blocked,
     xy_to_plan_cell,
 )
+from bfsop_jax.navigation.distance import (
+    MATRIX_CHUNK,
+    METHOD_ENV,
+    RELAX_STEPS,
+    geodesic_method,
+    sweep_rounds,
+)
 
 PRESET = get_preset("smoke")
 PC = PRESET.plan_cell_size
@@ -268,8 +275,6 @@ def test_distance_matrix_properties():
 def test_distance_matrix_solves_valid_sources_only_and_equals_dense_fields():
     """Batched matrices pool the valid sources of all rows into chunks (several chunks,
     rows with none): values equal the fields read at the cells, bit for bit."""
-    from bfsop_jax.navigation.distance import MATRIX_CHUNK
-
     rng = np.random.default_rng(21)
     n_maps, s = 3, 12
     maps = np.stack([random_blocked(rng, 0.2) for _ in range(n_maps)])
@@ -277,7 +282,7 @@ def test_distance_matrix_solves_valid_sources_only_and_equals_dense_fields():
     valid = rng.random((n_maps, s)) < 0.7
     valid[:, 0] = True
     valid[2] = False  # a row with no valid point at all
-    assert valid.sum() > MATRIX_CHUNK  # more than one chunk of lanes
+    assert valid.sum() > MATRIX_CHUNK["sweeps"]  # more than one chunk of lanes
     xy = np.stack([cells_to_xy(c) for c in cells])
     matrices = jax.jit(jax.vmap(lambda b, p, v: distance_matrix(b, p, v, PRESET)))
     got = np.asarray(matrices(maps, xy, valid))
@@ -291,9 +296,7 @@ def test_distance_matrix_solves_valid_sources_only_and_equals_dense_fields():
         want[:, ~valid[k]] = np.inf
         np.fill_diagonal(want, np.where(valid[k], 0.0, np.inf))
         np.testing.assert_array_equal(got[k], want)
-        alone = jax.jit(distance_matrix, static_argnums=3)(
-            maps[k], xy[k], valid[k], PRESET
-        )
+        alone = jax.jit(distance_matrix, static_argnums=3)(maps[k], xy[k], valid[k], PRESET)
         np.testing.assert_array_equal(np.asarray(alone), got[k])
     assert np.isinf(got[2]).all()
 
@@ -337,3 +340,74 @@ def test_nested_vmap_folds_batches_exactly():
     xy = cells_to_xy(srcs[0, 0])
     single = jax.vmap(lambda p: distance_field(jnp.asarray(maps[0]), p, PRESET))(xy)
     assert_fields_equal(single, dijkstra_fields(maps[0], srcs[0, 0]))
+
+
+# --- the two solvers: sweeps (CPU) and whole-grid relaxation (accelerators) ---------------
+
+
+def _both(fn):
+    """fn(method) for both solvers, as NumPy arrays."""
+    return [np.asarray(fn(m)) for m in ("sweeps", "relax")]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_relaxation_equals_sweeps_bit_for_bit_on_houses(seed):
+    rng = np.random.default_rng(100 + seed)
+    blocked = np.array(true_blocked(fine_house(rng), PRESET))
+    blocked[rng.integers(0, blocked.shape[0]), :] = True  # an unreachable part
+    cells = random_free_cells(rng, blocked, 6)
+    valid = np.ones(6, bool)
+    valid[4] = False
+    fields = jax.jit(distance_fields_from_cells, static_argnums=(3, 4))
+    sweeps, relax = _both(lambda m: fields(blocked, cells, valid, PRESET, m))
+    np.testing.assert_array_equal(relax, sweeps)
+    assert np.isinf(relax[4]).all() and np.isinf(relax).any() and np.isfinite(relax).any()
+    assert_fields_equal(relax[valid], dijkstra_fields(blocked, cells[valid]))
+    # the relaxation stops at the first block of steps that changes nothing
+    steps = int(
+        jax.jit(sweep_rounds, static_argnums=(3, 4))(blocked, cells, valid, PRESET, "relax")
+    )
+    assert steps % RELAX_STEPS == 0 and steps >= RELAX_STEPS
+
+
+def test_relaxation_batched_equals_alone_and_sweeps(monkeypatch):
+    """Batched matrices with several chunks of lanes (the accelerator chunk shrunk to 8)
+    and batched single fields: every row equals the row alone and the sweeps' value."""
+    monkeypatch.setitem(MATRIX_CHUNK, "relax", 8)
+    rng = np.random.default_rng(31)
+    maps = np.stack([random_blocked(rng, 0.25) for _ in range(3)])
+    cells = np.stack([random_free_cells(rng, b, 9) for b in maps])
+    valid = rng.random((3, 9)) < 0.7
+    valid[:, 0] = True
+    assert valid.sum() > 8
+    xy = np.stack([cells_to_xy(c) for c in cells])
+    batched = lambda m: jax.jit(jax.vmap(lambda b, p, v: distance_matrix(b, p, v, PRESET, m)))(
+        maps, xy, valid
+    )
+    sweeps, relax = _both(batched)
+    np.testing.assert_array_equal(relax, sweeps)
+    alone = jax.jit(distance_matrix, static_argnums=(3, 4))
+    for k in range(3):
+        np.testing.assert_array_equal(
+            np.asarray(alone(maps[k], xy[k], valid[k], PRESET, "relax")), relax[k]
+        )
+    field = lambda m: jax.jit(jax.vmap(lambda b, p: distance_field(b, p, PRESET, m)))(
+        maps, xy[:, 0]
+    )
+    f_sweeps, f_relax = _both(field)
+    np.testing.assert_array_equal(f_relax, f_sweeps)
+    one = jax.jit(distance_field, static_argnums=(2, 3))(maps[1], xy[1, 0], PRESET, "relax")
+    np.testing.assert_array_equal(np.asarray(one), f_relax[1])
+
+
+def test_geodesic_method_choice(monkeypatch):
+    monkeypatch.delenv(METHOD_ENV, raising=False)
+    assert geodesic_method() == ("sweeps" if jax.default_backend() == "cpu" else "relax")
+    assert geodesic_method("relax") == "relax"
+    monkeypatch.setenv(METHOD_ENV, "relax")
+    assert geodesic_method() == "relax" and geodesic_method("sweeps") == "sweeps"
+    monkeypatch.setenv(METHOD_ENV, "dijkstra")
+    with pytest.raises(ValueError, match="BFSOP_GEODESICS must be"):
+        geodesic_method()
+    with pytest.raises(ValueError, match="method must be"):
+        geodesic_method("fast")
