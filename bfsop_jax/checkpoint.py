@@ -14,6 +14,13 @@ a temporary directory that is renamed only when complete, so an interruption nev
 a half-written checkpoint that :meth:`CheckpointStore.latest_epoch` would report.
 Any failure to read a checkpoint (missing files, truncated or garbled data, a tree that
 does not match the model) becomes a ``ValueError`` naming the path.
+
+Checkpoints load on any device set: a restore never goes back to the devices a checkpoint
+was written from (a model trained on a GPU, or under a forced multi-device CPU mesh, loads
+on one CPU and the other way round). Every array is restored where its target says: the
+target's own sharding for concrete arrays, the current default device for abstract ones
+(``jax.ShapeDtypeStruct`` without a sharding, e.g. from ``nnx.eval_shape``). Models are
+written as host (NumPy) arrays, so ``model/`` records no device at all.
 """
 
 from __future__ import annotations
@@ -24,6 +31,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import jax
+import numpy as np
 import orbax.checkpoint as ocp
 
 from bfsop_jax import files
@@ -36,6 +45,7 @@ __all__ = [
     "CHECKPOINT_DIR",
     "export_policy",
     "load_model",
+    "local_target",
     "read_config",
     "save_model",
     "write_config",
@@ -100,7 +110,8 @@ class CheckpointStore:
             out = self._manager.restore(
                 epoch,
                 args=ocp.args.Composite(
-                    state=ocp.args.StandardRestore(target), meta=ocp.args.JsonRestore()
+                    state=ocp.args.StandardRestore(local_target(target)),
+                    meta=ocp.args.JsonRestore(),
                 ),
             )
         except Exception as err:  # Orbax / TensorStore raise many types for bad data
@@ -122,11 +133,54 @@ def _short(err: BaseException, limit: int = 400) -> str:
     return text if len(text) <= limit else text[:limit] + " ..."
 
 
+def _default_device() -> jax.Device:
+    device = jax.config.jax_default_device
+    if isinstance(device, jax.Device):
+        return device
+    if isinstance(device, str):  # a platform name
+        return jax.local_devices(backend=device)[0]
+    return jax.local_devices()[0]
+
+
+def local_target(target: Any) -> Any:
+    """A restore target that places every array on this process's devices.
+
+    Concrete ``jax.Array`` leaves keep their own sharding (e.g. training replicas placed
+    on a mesh); abstract leaves without a sharding go to the default device; NumPy
+    leaves stay host arrays. Without this, Orbax restores an abstract leaf onto the
+    devices recorded in the checkpoint, which fails on another machine ("topology
+    mismatch").
+    """
+    here = jax.sharding.SingleDeviceSharding(_default_device())
+
+    def leaf(x: Any) -> Any:
+        if isinstance(x, jax.Array):
+            return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding)
+        if isinstance(x, jax.ShapeDtypeStruct) and x.sharding is None:
+            return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=here)
+        return x
+
+    return jax.tree_util.tree_map(leaf, target)
+
+
+def _host_arrays(tree: Any) -> Any:
+    """Fully addressable arrays as NumPy (a checkpoint that records no device); arrays
+    spread over several hosts stay as they are (Orbax writes them collectively)."""
+
+    def leaf(x: Any) -> Any:
+        if isinstance(x, jax.Array) and x.is_fully_addressable:
+            return np.asarray(jax.device_get(x))
+        return x
+
+    return jax.tree_util.tree_map(leaf, tree)
+
+
 def save_model(run_dir: str | os.PathLike, params: Any) -> Path:
     """Write the chosen parameters to ``run_dir/model`` (replacing an older copy).
 
-    In a multi-host run every process calls it (Orbax saves collectively); process 0
-    swaps the directories.
+    Arrays are written from the host (NumPy), so the model loads on any device set. In a
+    multi-host run every process calls it (Orbax saves collectively); process 0 swaps
+    the directories.
     """
     path = Path(run_dir).absolute() / MODEL_DIR
     tmp = path.with_name(MODEL_DIR + ".tmp")
@@ -134,7 +188,7 @@ def save_model(run_dir: str | os.PathLike, params: Any) -> Path:
         shutil.rmtree(tmp, ignore_errors=True)
     barrier(f"save_model:clean:{path}")
     with ocp.StandardCheckpointer() as ckptr:
-        ckptr.save(tmp, params)
+        ckptr.save(tmp, _host_arrays(params))
         ckptr.wait_until_finished()
     if is_primary():
         # swap in the complete copy: a reader sees the old model or the new one, never half
@@ -149,13 +203,17 @@ def save_model(run_dir: str | os.PathLike, params: Any) -> Path:
 
 
 def load_model(run_dir: str | os.PathLike, target: Any) -> Any:
-    """Read ``run_dir/model`` into the structure of ``target`` (ValueError if unreadable)."""
+    """Read ``run_dir/model`` into the structure of ``target`` (ValueError if unreadable).
+
+    Arrays land where :func:`local_target` puts them (the default device for abstract
+    leaves), whatever devices the model was saved from.
+    """
     path = Path(run_dir).absolute() / MODEL_DIR
     if not path.is_dir():
         raise ValueError(f"no saved model in {Path(run_dir)} (missing {MODEL_DIR}/)")
     try:
         with ocp.StandardCheckpointer(multiprocessing_options=_this_process_only()) as ckptr:
-            return ckptr.restore(path, target)
+            return ckptr.restore(path, local_target(target))
     except Exception as err:
         raise ValueError(f"cannot read model checkpoint {path}: {_short(err)}") from None
 
@@ -163,8 +221,6 @@ def load_model(run_dir: str | os.PathLike, target: Any) -> Any:
 def _this_process_only() -> ocp.options.MultiprocessingOptions:
     """Reading a model is local: in a multi-host run one process may load a policy alone
     (Orbax would otherwise wait for the others at its barriers)."""
-    import jax
-
     if jax.process_count() == 1:
         return ocp.options.MultiprocessingOptions()
     me = jax.process_index()
