@@ -3,15 +3,19 @@
 Usage::
 
     python -m benchmarks.bench_explore --presets smoke,demo,paper --houses 32
+    python -m benchmarks.bench_explore --presets demo --batch 1024   # on an accelerator
 
-Per preset: a batch of ``--houses`` evaluation houses (seeds from 1,000,000, target
-HousePlant, reset key = house seed) explored with FBE until the budget gate closes or no
-reachable frontier is left. Prints budget use (path length / budget: median, minimum),
+Per preset: ``--houses`` evaluation houses (seeds from 1,000,000, target HousePlant)
+explored by a batch of ``--batch`` episodes (default: one per house; a larger batch
+cycles over the houses, episode e starting from reset key ``house seed + 10**7 * r`` of
+its r-th repeat, r = e // houses) with FBE until the budget gate closes or no reachable
+frontier is left. Prints budget use (path length / budget: median, minimum),
 the share of *stalled* episodes (budget use < 0.95 while a reachable frontier remains),
 goals dropped per episode, batched motion steps per second (compilation timed apart),
 and where a macro step's time goes (the strategy's decision vs the environment step,
-each timed alone on the same batch). Record results with the machine and date in
-``docs/benchmarks.md``.
+each timed alone on the same batch). The header names the backend and the geodesic
+solver (``BFSOP_GEODESICS=sweeps|relax`` forces one; ``JAX_PLATFORMS=cpu`` runs the CPU
+on a GPU machine). Record results with the machine and date in ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
@@ -19,15 +23,13 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
-import os
-import platform
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.timing import time_calls
+from benchmarks.timing import machine, time_calls
 from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
 from bfsop_jax.config import EVAL_SEED_START, get_preset
 from bfsop_jax.env import observe, reset, step
@@ -43,11 +45,23 @@ def _frontier_left(state, preset):
     return nearest_frontier(frontier_clusters(state.belief, preset), field, preset)[0] >= 0
 
 
-def run(preset_name: str, houses: int) -> dict:
+REPEAT_KEY_STRIDE = 10**7  # reset keys of repeated houses: seed + stride * repeat
+
+
+def run(preset_name: str, houses: int, batch_size: int | None = None) -> dict:
     preset = get_preset(preset_name)
+    batch_size = houses if batch_size is None else batch_size
+    if houses < 1 or batch_size < 1:
+        raise ValueError(f"--houses and --batch must be positive, got {houses} and {batch_size}")
     seeds = jnp.arange(EVAL_SEED_START, EVAL_SEED_START + houses)
-    keys = jax.vmap(jax.random.key)(seeds)
-    batch = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(keys, preset)
+    house_keys = jax.vmap(jax.random.key)(seeds)
+    generated = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(
+        house_keys, preset
+    )
+    episode = np.arange(batch_size)
+    which = jnp.asarray(episode % houses)
+    batch = jax.tree_util.tree_map(lambda x: x[which], generated)
+    keys = jax.vmap(jax.random.key)(seeds[which] + REPEAT_KEY_STRIDE * (episode // houses))
     reset_b = jax.jit(jax.vmap(reset, in_axes=(0, 0, None, None)), static_argnums=3)
     states = reset_b(keys, batch, target_id("HousePlant"), preset)
     fbe = FBE()
@@ -76,6 +90,7 @@ def run(preset_name: str, houses: int) -> dict:
     return {
         "preset": preset_name,
         "houses": houses,
+        "batch": batch_size,
         "budget_m": preset.budget_m,
         "budget_use_median": float(np.median(use)),
         "budget_use_min": float(use.min()),
@@ -96,13 +111,18 @@ def run(preset_name: str, houses: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="smoke,demo,paper")
-    ap.add_argument("--houses", type=int, default=32)
+    ap.add_argument("--houses", type=int, default=32, help="distinct houses")
+    ap.add_argument(
+        "--batch", type=int, default=None, help="episodes run together (default: --houses)"
+    )
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args()
-    machine = f"{platform.machine()} {os.cpu_count()} cores, {jax.default_backend()}"
-    print(f"# bench_explore  houses={args.houses}  {machine}  {dt.date.today().isoformat()}")
+    where = machine()
+    batch = args.houses if args.batch is None else args.batch
+    print(f"# bench_explore  houses={args.houses}  batch={batch}  {where}  {dt.date.today()}")
     cols = (
         "preset",
+        "batch",
         "budget_use_median",
         "budget_use_min",
         "stalled",
@@ -116,13 +136,13 @@ def main() -> None:
     print(" | ".join(cols))
     results = []
     for name in args.presets.split(","):
-        res = run(name.strip(), args.houses)
+        res = run(name.strip(), args.houses, batch)
         results.append(res)
         cells = [f"{res[c]:.3f}" if isinstance(res[c], float) else str(res[c]) for c in cols]
         print(" | ".join(cells), flush=True)
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"machine": machine, "results": results}, f, indent=1)
+            json.dump({"machine": where, "results": results}, f, indent=1)
 
 
 if __name__ == "__main__":

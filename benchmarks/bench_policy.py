@@ -7,6 +7,8 @@ times one instance at a time, side by side in one run:
 * ``StrategicPolicy.plan`` as users call it (greedy decoding + 2-opt + budget gate);
 * its parts: the host-side checks and padding (``validate``, pad, ``device_put``), and
   the jitted program alone on an already padded instance;
+* the hot path without host checks: ``plan(check=False)`` on an instance already on the
+  device (shapes checked from metadata, padding inside the program);
 * the program with the jit cache keyed the way it was before 2026-12-03 (the model's graph
   definition hashed on every call);
 * the same model without the route improvement after each insertion (``refine``), and
@@ -17,20 +19,22 @@ times one instance at a time, side by side in one run:
   (what the planner used before 2026-12-03; XLA:CPU's variadic arg-reductions are slow).
 
 Prints a Markdown table (medians over instances, milliseconds) and the reward of each
-variant, so a speed-up that changed the plans would show.
+variant, so a speed-up that changed the plans would show; then batched planning:
+instances/s of one ``plan`` call on ``--batch`` instances (the posed ones, cycled), with
+and without the host checks.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import platform
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.timing import machine, time_calls
 from bfsop_jax import ops
 from bfsop_jax import policy as policy_module
 from bfsop_jax.config import EVAL_SEED_START
@@ -74,9 +78,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--preset", default="demo", help="preset of the posed tasks")
     ap.add_argument("--houses", type=int, default=2, help="held-out houses to pose tasks in")
     ap.add_argument("--tasks", type=int, default=24, help="tasks per house")
+    ap.add_argument("--batch", type=int, default=1024, help="instances of the batched plan")
     args = ap.parse_args(argv)
-    if args.houses < 1 or args.tasks < 1:
-        raise SystemExit("--houses and --tasks must be >= 1")
+    if args.houses < 1 or args.tasks < 1 or args.batch < 1:
+        raise SystemExit("--houses, --tasks and --batch must be >= 1")
 
     cfg = DataConfig(preset=args.preset, tasks_per_house=args.tasks)
     seeds = np.arange(EVAL_SEED_START, EVAL_SEED_START + args.houses)
@@ -91,6 +96,7 @@ def main(argv: list[str] | None = None) -> None:
     unrefined = StrategicPolicy(model, policy.num_nodes, policy.num_sets)
 
     padded = {id(x): policy._prepare(x)[0] for x in items}
+    on_device = {id(x): jax.device_put(x) for x in items}
     once = policy._static_graph
     program = _program(policy, lambda: once)
     program_rehashed = _program(policy, lambda: policy_module._HashedOnce(policy._graphdef))
@@ -100,6 +106,8 @@ def main(argv: list[str] | None = None) -> None:
         ("  jitted program", lambda x: program(padded[id(x)])),
         ("  jitted program, graph hashed per call (before)",
          lambda x: program_rehashed(padded[id(x)])),
+        ("plan(check=False), instance on the device",
+         lambda x: policy.plan(on_device[id(x)], check=False).reward),
         ("plan without the 2-opt", lambda x: policy.plan(x, two_opt=False).reward),
         ("plan without refine", lambda x: unrefined.plan(x).reward),
     ] + [
@@ -121,17 +129,33 @@ def main(argv: list[str] | None = None) -> None:
     finally:
         ops.argmin, ops.argmax = fast
         jax.clear_caches()
+    batched = _batched(policy, items, args.batch)
     config = policy.config
-    machine = f"{platform.machine()}, {jax.default_backend()}, {time.strftime('%Y-%m-%d')}"
     print(f"{len(items)} instances from held-out {args.preset} houses {seeds[0]}..{seeds[-1]}; "
           f"model {args.model} ({config.decoder} decoder, refine={config.refine})")  # fmt: skip
-    print(machine)
+    print(f"{machine()}, {time.strftime('%Y-%m-%d')}")
     print("\n| step | median ms / instance | with jnp.argmin/argmax | ratio |\n|---|---|---|---|")
     for (name, _), ms, old in zip(rows, now, before, strict=True):
         print(f"| {name} | {ms:.2f} | {old:.2f} | {old / ms:.2f}x |")
     print(f"\nsummed reward: with refine {reward:.2f}, without {reward_plain:.2f}; "
           + ", ".join(f"{name} {r:.2f}" for name, r in rewards.items())
           + f"; same plans with jnp's arg-reductions: {same}")  # fmt: skip
+    print(f"\nbatched plan (greedy + 2-opt), {args.batch} instances in one call: "
+          + ", ".join(f"{name} {ms:.1f} ms = {args.batch / ms * 1e3:,.0f} instances/s"
+                      for name, ms in batched.items()))  # fmt: skip
+
+
+def _batched(policy: StrategicPolicy, items: list, size: int) -> dict[str, float]:
+    """Median ms of one ``plan`` call on ``size`` instances (``items`` cycled), checked
+    on the host and unchecked on the device."""
+    rows = [items[i % len(items)] for i in range(size)]
+    batch = jax.tree_util.tree_map(lambda *x: np.stack(x), *rows)
+    device = jax.device_put(batch)
+    timed = {
+        "checked (NumPy batch)": lambda: policy.plan(batch).reward,
+        "check=False (batch on the device)": lambda: policy.plan(device, check=False).reward,
+    }
+    return {name: 1e3 * time_calls(fn, repeats=3).median for name, fn in timed.items()}
 
 
 if __name__ == "__main__":

@@ -6,7 +6,9 @@ Usage::
         --methods fbe,bfs_global,tfl_reactive,bfsop_vns,bfsop_st
 
 The batch is the first ``--batch`` episodes of the Table I protocol (9 categories over
-held-out houses from seed 1,000,000). Per method, all episodes run together (one
+held-out houses from seed 1,000,000); ``--houses H`` caps the distinct houses (the
+protocol's episodes of H houses, repeated to fill the batch, e.g. ``--batch 4096
+--houses 64`` on an accelerator). Per method, all episodes run together (one
 ``jax.vmap``) until every one has stopped. Prints episodes/s and motion steps/s
 (compilation timed apart), macro steps, planner calls, and where the time goes:
 
@@ -25,15 +27,13 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
-import os
-import platform
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.timing import time_calls
+from benchmarks.timing import machine, time_calls
 from bfsop_jax.config import EVAL_SEED_START, get_preset
 from bfsop_jax.env import observe, step
 from bfsop_jax.eval import navigation as nav
@@ -41,10 +41,18 @@ from bfsop_jax.sop import callback as vns_host
 from bfsop_jax.world.prior import default_prior
 
 
-def run(preset_name: str, batch: int, methods: list[str], checkpoint: str | None) -> list[dict]:
+def run(
+    preset_name: str,
+    batch: int,
+    methods: list[str],
+    checkpoint: str | None,
+    max_houses: int | None = None,
+) -> list[dict]:
     preset = get_preset(preset_name)
     houses = nav.HouseSet(preset)
     n_houses = max(1, -(-batch // 9))
+    if max_houses is not None:
+        n_houses = min(n_houses, max_houses)
     episodes = nav.protocol_episodes(
         houses, range(EVAL_SEED_START, EVAL_SEED_START + n_houses), list(range(9))
     )
@@ -97,14 +105,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo")
     ap.add_argument("--batch", type=int, default=90)
+    ap.add_argument("--houses", type=int, default=None, help="cap on distinct houses")
     ap.add_argument("--methods", default=",".join(nav.METHODS))
     ap.add_argument("--checkpoint", default=None)
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args()
-    machine = f"{platform.machine()} {os.cpu_count()} cores, {jax.default_backend()}"
-    print(f"# bench_rollout  preset={args.preset}  batch={args.batch}  {machine}  "
+    where = machine()
+    print(f"# bench_rollout  preset={args.preset}  batch={args.batch}  {where}  "
           f"{dt.date.today().isoformat()}")  # fmt: skip
-    rows = run(args.preset, args.batch, args.methods.split(","), args.checkpoint)
+    rows = run(args.preset, args.batch, args.methods.split(","), args.checkpoint, args.houses)
     cols = ("method", "episodes_per_s", "motion_steps_per_s", "rollout_s", "vs_fbe",
             "compile_s", "macro_steps", "planner_calls", "decide_ms", "env_ms", "vns_s",
             "plan_ms")  # fmt: skip
@@ -114,7 +123,7 @@ def main() -> None:
         print(" | ".join(fmt(r[c]) for c in cols), flush=True)
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"machine": machine, "rows": rows}, f, indent=1)
+            json.dump({"machine": where, "rows": rows}, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,22 @@ from typing import Any
 import jax
 import numpy as np
 
-__all__ = ["Timing", "time_calls"]
+__all__ = ["Timing", "machine", "time_calls"]
+
+
+def machine() -> str:
+    """The machine line of a benchmark's output: CPU, backend and its device, geodesic
+    solver (``bfsop_jax.navigation.distance.geodesic_method``) and JAX version."""
+    import os
+    import platform
+
+    from bfsop_jax.navigation.distance import geodesic_method
+
+    device = jax.devices()[0]
+    return (
+        f"{platform.machine()} {os.cpu_count()} cores, {jax.default_backend()} "
+        f"({device.device_kind}), geodesics={geodesic_method()}, jax {jax.__version__}"
+    )
 
 
 @dataclasses.dataclass(frozen=True)

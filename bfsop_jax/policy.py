@@ -153,6 +153,7 @@ class StrategicPolicy:
         temperature: float = 1.0,
         fill: bool = False,
         multi_start: bool | int = False,
+        check: bool = True,
     ) -> Solution:
         """Plan one instance (``set_id`` [n]) or a batch (``set_id`` [B, n]).
 
@@ -169,6 +170,12 @@ class StrategicPolicy:
                 K, each starting with a move into its set, and keep the best (K more
                 rollouts); an int M: M more rollouts, starting in the M sets the decoder
                 scores highest for its first move after the greedy rollout's set.
+            check: validate the instance's values on the host first
+                (:func:`bfsop_jax.sop.validate`; a bad instance raises ``ValueError``).
+                ``False`` is the hot path for instances known to be valid (e.g. posed by
+                :mod:`bfsop_jax.sop.builder`): only shapes are checked, from metadata,
+                and padding runs inside the compiled program, so JAX arrays already on
+                the device never travel to the host. Same plans either way.
 
         Returns:
             A feasible :class:`Solution` (``nodes`` [T] or [B, T] with T = plan_length(k),
@@ -179,7 +186,10 @@ class StrategicPolicy:
         if not temperature > 0:
             raise ValueError(f"temperature must be positive, got {temperature}")
         starts = _starts(multi_start, self.num_sets)
-        padded, single, k = self._prepare(instance)
+        if check:
+            padded, single, k = self._prepare(instance)
+        else:
+            padded, single, k = self._check_shapes(instance)
         # the default key is made once and the batch axis of one instance is dropped in
         # the program: on a CPU every eager op costs tens of microseconds
         sol = _plan_jit(
@@ -194,6 +204,7 @@ class StrategicPolicy:
             fill=bool(fill),
             multi_start=starts,
             single=single,
+            pad_to=None if check else (self.num_nodes, self.num_sets),
         )
         if k == self.num_sets:
             return sol
@@ -256,6 +267,21 @@ class StrategicPolicy:
         return jax.tree_util.tree_map(lambda x: x[0], out) if single else out
 
     # -- internals -----------------------------------------------------------------------
+    def _check_shapes(self, instance: SOPInstance) -> tuple[SOPInstance, bool, int]:
+        """``plan(check=False)``: ranks and sizes from metadata only (nothing is copied)."""
+        if not isinstance(instance, SOPInstance):
+            raise ValueError(f"expected an SOPInstance, got {type(instance).__name__}")
+        shape = np.shape(instance.set_id)
+        if len(shape) not in (1, 2):
+            raise ValueError(f"set_id must be [N] or [B, N], got shape {shape}")
+        n, k = shape[-1], np.shape(instance.set_reward)[-1]
+        if n > self.num_nodes or k > self.num_sets:
+            raise ValueError(
+                f"instance has {n} nodes and {k} sets; this model plans at most "
+                f"{self.num_nodes} nodes and {self.num_sets} sets"
+            )
+        return instance, len(shape) == 1, k
+
     def _prepare(self, instance: SOPInstance) -> tuple[SOPInstance, bool, int]:
         inst = validate(instance, max_batch_dims=1)  # NumPy leaves
         single = inst.set_id.ndim == 1
@@ -301,14 +327,22 @@ def _default_key() -> jax.Array:
     jax.jit,
     static_argnames=(
         "graphdef", "use_two_opt", "augment", "best_of", "fill", "multi_start", "single",
+        "pad_to",
     ),
 )  # fmt: skip
 def _plan_jit(
     params, inst, key, temperature, *, graphdef, use_two_opt, augment, best_of, fill,
-    multi_start, single,
+    multi_start, single, pad_to=None,
 ):  # fmt: skip
     # compiled once per (model graph, batch size, options); the body is looked up at trace
-    # time, which lets tests count traces. ``single``: drop the batch axis of one.
+    # time, which lets tests count traces. ``single``: the instance has (``pad_to``: will
+    # have) one batch axis of one, dropped at the end. ``pad_to`` (N, K): the instance is
+    # the caller's, unpadded, single or batched; pad it here.
+    if pad_to is not None:
+        inst = jax.tree_util.tree_map(jnp.asarray, inst)
+        if single:
+            inst = jax.tree_util.tree_map(lambda x: x[None], inst)
+        inst = _pad(inst, *pad_to, jnp)
     sol = _plan_program(
         graphdef.value, params, inst, key, temperature, use_two_opt, augment, best_of, fill,
         multi_start,

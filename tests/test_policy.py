@@ -314,3 +314,21 @@ def test_shipped_policies_plan_map_instances(name):
     for i, inst in enumerate(insts):
         assert_matches_evaluate(inst, jax.tree_util.tree_map(lambda x, i=i: x[i], sol))
     assert float(np.mean(np.asarray(sol.reward))) > 0
+
+
+def test_unchecked_plan_equals_checked_plan(policy):
+    """``check=False`` (shapes from metadata, padding in the program) plans the same as the
+    checked path, for one instance (NumPy or device arrays) and for a batch; it still
+    refuses instances larger than the model."""
+    insts = instances(range(3))
+    for inst in insts:
+        want = policy.plan(inst, fill=True)
+        on_device = jax.tree_util.tree_map(jnp.asarray, inst)
+        for x in (inst, on_device):
+            got = policy.plan(x, fill=True, check=False)
+            chex.assert_trees_all_equal(got, want)
+    batch = stack(insts)
+    chex.assert_trees_all_equal(policy.plan(batch, check=False), policy.plan(batch))
+    big = random_instance(0, num_sets=SETS + 1, viewpoints=2)
+    with pytest.raises(ValueError, match="at most"):
+        policy.plan(big, check=False)
