@@ -17,8 +17,9 @@ random free planning cells, and times after compilation:
   dense layout that solves a field for every point slot (``distance_fields_from_cells``
   read at the points), side by side, with their ratio,
 
-plus the number of sweep rounds the solver needed. Times are wall-clock milliseconds
-with ``block_until_ready``; compile time is reported separately.
+plus the iterations the solver needed (rounds of four sweeps, or relaxation steps: the
+solver is ``geodesic_method()``, by backend or ``$BFSOP_GEODESICS``). Times are
+wall-clock milliseconds with ``block_until_ready``; compile time is reported separately.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from bfsop_jax.navigation import (
     plan_cell_to_xy,
     true_blocked,
 )
-from bfsop_jax.navigation.distance import sweep_rounds
+from bfsop_jax.navigation.distance import geodesic_method, sweep_rounds
 
 ENV_BATCH = 16
 SWITCH_BATCH = 8  # rows of one sparse_cond sub-batch (instances posed together)
@@ -117,7 +118,8 @@ def run(
     matrix = jax.jit(distance_matrix, static_argnums=3)
     field = jax.jit(distance_field, static_argnums=2)
     batch = jax.jit(jax.vmap(distance_field, in_axes=(0, 0, None)), static_argnums=2)
-    rounds = jax.jit(sweep_rounds, static_argnums=3)
+    method = geodesic_method()
+    rounds = jax.jit(lambda b, c, v: sweep_rounds(b, c, v, preset, method))
 
     compile_s, matrix_ms, field_ms, n_rounds = [], [], [], []
     for k in range(len(maps)):
@@ -125,7 +127,7 @@ def run(
         compile_s.append(first - min(times) / 1e3)
         matrix_ms += times
         field_ms += _time(field, maps[k], xy[k, 0], preset, repeats=repeats)[1]
-        n_rounds.append(int(rounds(maps[k], points[k], valid, preset)))
+        n_rounds.append(int(rounds(maps[k], points[k], valid)))
     reps = -(-ENV_BATCH // len(maps))
     bmaps = np.concatenate([maps] * reps)[:ENV_BATCH]
     bxy = np.concatenate([xy[:, 0]] * reps)[:ENV_BATCH]
@@ -146,6 +148,7 @@ def run(
         "in_loop_dense_ms_median": dense_ms,
         "in_loop_speedup": dense_ms / sparse_ms,
         "device": jax.devices()[0].platform,
+        "method": method,
     }
 
 
@@ -183,7 +186,7 @@ def main() -> None:
             f"[{r['preset']}] plan grid {r['plan_shape']} ({r['maps']}), {r['device']}: "
             f"{r['n_points']}x{r['n_points']} distance matrix "
             f"{r['matrix_ms_median']:.1f} ms median ({r['matrix_ms_min']:.1f} min), "
-            f"compile {r['compile_s']:.2f} s, sweep rounds {r['sweep_rounds']}; "
+            f"compile {r['compile_s']:.2f} s, {r['method']} iterations {r['sweep_rounds']}; "
             f"one field {r['field_ms_median']:.2f} ms; "
             f"vmap over {ENV_BATCH} maps {r[f'vmap{ENV_BATCH}_fields_ms_median']:.1f} ms; "
             f"in-loop matrices ({SWITCH_BATCH} rows, 6-16 valid points): valid lanes "

@@ -17,7 +17,17 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-__all__ = ["sparse_cond"]
+__all__ = ["SPARSE_CAPACITY", "default_capacity", "sparse_cond"]
+
+# Rows per sub-batch of the true branch, by backend: a CPU core runs few rows at a time
+# best; an accelerator runs a round of many rows in about the time of one, and the rounds
+# are sequential.
+SPARSE_CAPACITY = {"cpu": 8, "accelerator": 128}
+
+
+def default_capacity() -> int:
+    """Sub-batch rows for the current backend (``jax.default_backend()`` at trace time)."""
+    return SPARSE_CAPACITY["cpu" if jax.default_backend() == "cpu" else "accelerator"]
 
 
 def sparse_cond(
@@ -25,7 +35,7 @@ def sparse_cond(
     true_fn: Callable[..., Any],
     false_fn: Callable[..., Any],
     *operands: Any,
-    capacity: int = 8,
+    capacity: int | None = None,
 ) -> Any:
     """``true_fn(pred, *operands)`` where ``pred`` holds, else ``false_fn(*operands)``.
 
@@ -42,8 +52,13 @@ def sparse_cond(
         true_fn: ``(mask, *operands) -> out``; ``mask`` is true for a real row.
         false_fn: ``(*operands) -> out``, the cheap result.
         *operands: pytrees of arrays.
-        capacity: rows per sub-batch of the true branch (static).
+        capacity: rows per sub-batch of the true branch (static; default
+            :func:`default_capacity`: 8 on a CPU, 128 on accelerators). It changes how
+            many rounds run, never what a row computes.
     """
+    capacity = default_capacity() if capacity is None else int(capacity)
+    if capacity < 1:
+        raise ValueError(f"capacity must be >= 1, got {capacity}")
 
     @jax.custom_batching.custom_vmap
     def run(pred, operands):
