@@ -16,6 +16,7 @@ from bfsop_jax.agents import (
     FBE,
     BFSGlobal,
     BFSGlobalConfig,
+    BFSOPConfig,
     NearestNeighbourPlanner,
     TFLReactive,
     TFLReactiveConfig,
@@ -212,3 +213,27 @@ def test_nearest_neighbour_plan_visits_sets_by_distance():
     assert float(sol.cost) == pytest.approx(2.0) and float(sol.reward) == pytest.approx(2.0)
     one = nearest_neighbour_plan(inst, max_sets=1)
     assert np.asarray(one.nodes).tolist() == [0, 2, -1, -1]
+
+
+def test_bfsop_replan_replaces_tours_under_way():
+    """``BFSOPConfig(replan=True)``: the two variants agree until the first step where
+    only the re-planning one calls its planner, and there the default one is touring (a
+    tour under way, which the default runs to its end)."""
+    states = _states((1000000, 1000001, 1000002))
+    _, plain = _batched(BFSOP_NN)(states)
+    _, again = _batched(BFSOP(NearestNeighbourPlanner(), BFSOPConfig(replan=True)))(states)
+    p_plan, a_plan = np.asarray(plain.planned), np.asarray(again.planned)
+    seen = 0
+    for b in range(3):
+        differ = np.flatnonzero(p_plan[b] != a_plan[b])
+        if differ.size == 0:
+            continue
+        t = differ[0]
+        assert a_plan[b, t] and not p_plan[b, t]
+        assert bool(np.asarray(plain.touring)[b, t])
+        np.testing.assert_array_equal(
+            np.asarray(plain.path_length)[b, :t], np.asarray(again.path_length)[b, :t]
+        )
+        seen += 1
+    assert seen >= 1, "no re-plan in any episode: the test would be vacuous"
+    assert int(a_plan.sum()) > int(p_plan.sum())

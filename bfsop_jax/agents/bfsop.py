@@ -60,6 +60,9 @@ class BFSOPConfig:
     # a tour may use at most this many metres (the SOP budget; inf = all that remains):
     # shorter tours return to exploring sooner and are re-planned on a larger map
     tour_horizon_m: float = 40.0
+    # re-plan a tour being executed when a new landmark of interest is detected on the way
+    # (the plan covers it and the rest of the old tour); False: tours run to their end
+    replan: bool = False
 
 
 @struct.dataclass
@@ -188,11 +191,15 @@ class BFSOP(TourStrategy):
         worth = est_r / jnp.maximum(est_c, 1e-3) > yield_rate
         worth = worth | (remaining <= np.float32(cfg.budget_margin) * est_c)
         worth = worth | (pending.sum() >= preset.n_loi)
-        changed = jnp.any(pending != rule.considered)
+        # While exploring: any change of the pending set. While touring (re-planning), only
+        # a newly detected landmark: the tour's own visits shrink the set as planned.
+        new = jnp.any(pending & ~rule.considered)
+        changed = jnp.where(touring, new, jnp.any(pending != rule.considered))
         want = (est_r > 0) & worth & changed
         # An evaluation is not repeated until the pending set changes (with nothing left to
         # explore, the tour strategy switches regardless); a tour's visits change it.
-        return want, rule.replace(considered=jnp.where(touring, rule.considered, pending))
+        keep = touring & ~(new & np.bool_(cfg.replan))
+        return want, rule.replace(considered=jnp.where(keep, rule.considered, pending))
 
     def rule_update(self, rule, before, after, info: StepInfo, exploring):
         cfg = self.config

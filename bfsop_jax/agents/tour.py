@@ -112,6 +112,13 @@ class TourStrategy:
         """Blocked macro steps before a tour viewpoint is skipped."""
         return self.config.max_attempts
 
+    @property
+    def replans(self) -> bool:
+        """Whether ``wants_tour`` may replace a tour being executed (default: no; a tour
+        runs to its end). A replacement plan starts from the agent's position over what
+        is still pending, the rest of the old tour included."""
+        return bool(getattr(self.config, "replan", False))
+
     # -- hooks (overridden) ------------------------------------------------------------
     def rule_init(self, obs: Observation, preset: Preset) -> Any:
         return ()
@@ -167,8 +174,10 @@ class TourStrategy:
         want, rule = self.wants_tour(
             memory.rule, obs, pending, has_frontier, tour.touring, preset
         )
-        switch = ~tour.touring & ~obs.done & ~memory.finished & jnp.any(pending)
-        switch = switch & (want | ~has_frontier)
+        can = ~obs.done & ~memory.finished & jnp.any(pending)
+        switch = can & ~tour.touring & (want | ~has_frontier)
+        if self.replans:
+            switch = switch | (can & tour.touring & want)
 
         def posed(mask, obs, pending):
             inst, choice = build_instance(
