@@ -134,7 +134,7 @@ def _short(err: BaseException, limit: int = 400) -> str:
 
 
 def _default_device() -> jax.Device:
-    device = jax.config.jax_default_device
+    device = getattr(jax.config, "jax_default_device", None)
     if isinstance(device, jax.Device):
         return device
     if isinstance(device, str):  # a platform name
