@@ -235,11 +235,7 @@ class StrategicPolicy:
         if single:
             inst = jax.tree_util.tree_map(lambda x: x[None], inst)
         n, k = inst.set_id.shape[1], inst.set_reward.shape[1]
-        if n > self.num_nodes or k > self.num_sets:
-            raise ValueError(
-                f"instance has {n} nodes and {k} sets; this model plans at most "
-                f"{self.num_nodes} nodes and {self.num_sets} sets"
-            )
+        self._require_fits(n, k)
         inst = _pad(inst, self.num_nodes, self.num_sets, jnp)
         key = jax.random.key(0) if key is None else key
         sol = _plan_program(
@@ -267,6 +263,14 @@ class StrategicPolicy:
         return jax.tree_util.tree_map(lambda x: x[0], out) if single else out
 
     # -- internals -----------------------------------------------------------------------
+    def _require_fits(self, n: int, k: int) -> None:
+        """ValueError when an instance of n nodes and k sets exceeds the model's N, K."""
+        if n > self.num_nodes or k > self.num_sets:
+            raise ValueError(
+                f"instance has {n} nodes and {k} sets; this model plans at most "
+                f"{self.num_nodes} nodes and {self.num_sets} sets"
+            )
+
     def _check_shapes(self, instance: SOPInstance) -> tuple[SOPInstance, bool, int]:
         """``plan(check=False)``: ranks and sizes from metadata only (nothing is copied)."""
         if not isinstance(instance, SOPInstance):
@@ -275,11 +279,7 @@ class StrategicPolicy:
         if len(shape) not in (1, 2):
             raise ValueError(f"set_id must be [N] or [B, N], got shape {shape}")
         n, k = shape[-1], np.shape(instance.set_reward)[-1]
-        if n > self.num_nodes or k > self.num_sets:
-            raise ValueError(
-                f"instance has {n} nodes and {k} sets; this model plans at most "
-                f"{self.num_nodes} nodes and {self.num_sets} sets"
-            )
+        self._require_fits(n, k)
         return instance, len(shape) == 1, k
 
     def _prepare(self, instance: SOPInstance) -> tuple[SOPInstance, bool, int]:
@@ -288,11 +288,7 @@ class StrategicPolicy:
         if single:
             inst = jax.tree_util.tree_map(lambda x: x[None], inst)
         n, k = inst.set_id.shape[1], inst.set_reward.shape[1]
-        if n > self.num_nodes or k > self.num_sets:
-            raise ValueError(
-                f"instance has {n} nodes and {k} sets; this model plans at most "
-                f"{self.num_nodes} nodes and {self.num_sets} sets"
-            )
+        self._require_fits(n, k)
         padded = _pad(inst, self.num_nodes, self.num_sets)
         return jax.device_put(padded, jax.devices()[0]), single, k
 

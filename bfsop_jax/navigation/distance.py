@@ -146,6 +146,14 @@ def snap_to_free(blocked: jax.Array, cells: jax.Array) -> tuple[jax.Array, jax.A
     return jnp.where(found[..., None], snapped, cells).astype(jnp.int32), found
 
 
+def _free_squares(free: jax.Array) -> jax.Array:
+    """[M, Hp + 1, Wp + 1] bool: entry [:, a, b] tells whether the 2 x 2 square with
+    top-left cell (a - 1, b - 1) is entirely free (False where it leaves the grid): a
+    diagonal move across it is allowed."""
+    square = free[:, :-1, :-1] & free[:, 1:, 1:] & free[:, 1:, :-1] & free[:, :-1, 1:]
+    return jnp.pad(square, ((0, 0), (1, 1), (1, 1)))
+
+
 def _entry_costs(blocked: jax.Array, pc: float) -> dict[str, jax.Array]:
     """Cost of entering each cell by each kind of move (inf: move not allowed).
 
@@ -156,9 +164,7 @@ def _entry_costs(blocked: jax.Array, pc: float) -> dict[str, jax.Array]:
     """
     free = ~blocked
     orth = jnp.where(free, np.float32(pc), _INF)
-    square = free[:, :-1, :-1] & free[:, 1:, 1:] & free[:, 1:, :-1] & free[:, :-1, 1:]
-    diag = jnp.where(square, np.float32(pc * math.sqrt(2.0)), _INF)
-    sq = jnp.pad(diag, ((0, 0), (1, 1), (1, 1)), constant_values=_INF)
+    sq = jnp.where(_free_squares(free), np.float32(pc * math.sqrt(2.0)), _INF)
     # sq[:, a, b]: square with top-left cell (a - 1, b - 1)
     lanes = lambda a: jnp.transpose(a, (1, 2, 0))[..., None]
     return {
@@ -232,8 +238,7 @@ def _relax_lanes(blocked: jax.Array, src: jax.Array, src_ok: jax.Array, pc: floa
     """
     m, hp, wp = blocked.shape
     free = ~blocked
-    square = free[:, :-1, :-1] & free[:, 1:, 1:] & free[:, 1:, :-1] & free[:, :-1, 1:]
-    sq = jnp.pad(square, ((0, 0), (1, 1), (1, 1)))  # sq[:, a, b]: top-left (a-1, b-1)
+    sq = _free_squares(free)
     lanes = lambda a: jnp.transpose(a, (1, 2, 0))[..., None]  # [Hp, Wp, M, 1]
     # entering (i, j) diagonally from its NW, NE, SW, SE neighbour: that 2 x 2 square free
     diag_ok = [lanes(sq[:, a : a + hp, b : b + wp]) for a in (0, 1) for b in (0, 1)]
