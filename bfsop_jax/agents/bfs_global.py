@@ -27,6 +27,13 @@ class BFSGlobalConfig:
 
     fraction: float = 0.1  # share of B explored before any tour (validation scan: 0.1)
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
+    # True: a landmark stays pending until every coverage point of its footprint has been
+    # seen (or a visit sees nothing new), each visit completing what it can; False (the
+    # default, chosen on validation houses): retired at its first visit
+    cover: bool = False
+    # with cover: after a visit that leaves the landmark seen in part, go straight on to
+    # the nearest viewpoint that sees more of it (False: leave it pending for later tours)
+    complete: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +44,7 @@ class BFSGlobal(TourStrategy):
     explorer: FBE = FBE()
     record: bool = False
 
-    def wants_tour(self, rule, obs, pending, has_frontier, touring, preset):
+    def wants_tour(self, rule, obs, pending, reward, has_frontier, touring, preset):
         late = obs.path_length >= np.float32(self.config.fraction) * obs.budget
         return late, rule
 

@@ -41,7 +41,7 @@ from bfsop_jax.config import Preset
 from bfsop_jax.env.types import Observation, StepInfo
 from bfsop_jax.sop.types import Solution, SOPInstance
 
-__all__ = ["BFSOP", "BFSOPConfig", "SwitchRule", "greedy_estimate"]
+__all__ = ["BFSOP", "BFSOPConfig", "SwitchRule", "best_rate_prefix", "greedy_estimate"]
 
 _XY_UNITS = 64.0  # estimate coordinates in whole 1/64 m
 _REWARD_UNITS = 65536.0  # yield bookkeeping in whole 2^-16 reward units
@@ -63,13 +63,25 @@ class BFSOPConfig:
     # re-plan a tour being executed when a new landmark of interest is detected on the way
     # (the plan covers it and the rest of the old tour); False: tours run to their end
     replan: bool = False
+    # execute only the prefix of the planned tour with the best reward per metre (then
+    # re-plan on the grown map): a receding horizon; False: the whole tour
+    best_rate_prefix: bool = False
+    # True: a landmark stays pending until every coverage point of its footprint has been
+    # seen (or a visit sees nothing new), each visit completing what it can; False (the
+    # default, chosen on validation houses): retired at its first visit
+    cover: bool = False
+    # with cover: after a visit that leaves the landmark seen in part, go straight on to
+    # the nearest viewpoint that sees more of it (False: leave it pending for later tours)
+    complete: bool = True
 
 
 @struct.dataclass
 class SwitchRule:
     """The switcher's own state. M = object slots."""
 
-    considered: jax.Array  # bool [M]: pending set at the last (declined) evaluation
+    # float32 [M]: each landmark's reward (0 = not pending) at the last evaluation; a
+    # landmark seen in part is worth less after a visit, which counts as a change
+    considered: jax.Array
     explore_m: jax.Array  # float32 []: decayed metres explored
     explore_reward: jax.Array  # float32 []: decayed landmark reward discovered
 
@@ -146,6 +158,31 @@ def greedy_estimate(
     return total_r, total_c
 
 
+def best_rate_prefix(instance: SOPInstance, nodes: jax.Array) -> jax.Array:
+    """int32 []: the length of the plan's prefix with the most reward per metre.
+
+    ``nodes`` int32 [T + 1]: start node, then viewpoints (-1 padded, contiguous). Each
+    prefix's reward (its sets' rewards) and cost (its legs) are summed in visiting order,
+    one add at a time, so batched and single calls agree bit for bit. Ties go to the
+    longer prefix; 0 when the plan has no viewpoint.
+    """
+    sets = jnp.maximum(instance.set_id[jnp.maximum(nodes, 0)], 0)
+    rate_best = jnp.full((), -1.0, jnp.float32)
+    best = jnp.zeros((), jnp.int32)
+    cum_r = jnp.zeros((), jnp.float32)
+    cum_c = jnp.zeros((), jnp.float32)
+    for i in range(1, nodes.shape[0]):
+        ok = nodes[i] > 0
+        leg = instance.cost[jnp.maximum(nodes[i - 1], 0), jnp.maximum(nodes[i], 0)]
+        cum_r = cum_r + jnp.where(ok, instance.set_reward[sets[i]], 0.0)
+        cum_c = cum_c + jnp.where(ok, leg, 0.0)
+        rate = cum_r / jnp.maximum(cum_c, np.float32(1e-3))
+        take = ok & (rate >= rate_best)
+        rate_best = jnp.where(take, rate, rate_best)
+        best = jnp.where(take, i, best)
+    return best
+
+
 def _decayed(decay: float, value: jax.Array, added: jax.Array) -> jax.Array:
     """``decay * value + added`` with both roundings explicit (never a fused multiply-add)."""
     return jax.lax.optimization_barrier(np.float32(decay) * value) + added
@@ -167,21 +204,27 @@ class BFSOP(TourStrategy):
     def plan(self, mask: jax.Array, instance: SOPInstance) -> Solution:
         return self.planner(mask, instance)
 
+    def tour_length(self, instance: SOPInstance, nodes: jax.Array) -> jax.Array:
+        full = super().tour_length(instance, nodes)
+        if not self.config.best_rate_prefix:
+            return full
+        return best_rate_prefix(instance, nodes)
+
     def tour_budget(self, obs: Observation) -> jax.Array:
         return jnp.minimum(obs.remaining, np.float32(self.config.tour_horizon_m))
 
     def rule_init(self, obs: Observation, preset: Preset) -> SwitchRule:
         return SwitchRule(
-            considered=jnp.zeros(obs.found.shape, bool),
+            considered=jnp.zeros(obs.found.shape, jnp.float32),
             explore_m=jnp.zeros((), jnp.float32),
             explore_reward=jnp.zeros((), jnp.float32),
         )
 
-    def wants_tour(self, rule, obs, pending, has_frontier, touring, preset):
+    def wants_tour(self, rule, obs, pending, reward, has_frontier, touring, preset):
         cfg = self.config
         remaining = obs.budget - obs.path_length
         horizon = self.tour_budget(obs)
-        rew = jnp.where(pending, landmark_rewards(obs), 0.0)
+        rew = reward
         top_r, top_i = jax.lax.top_k(rew, min(preset.n_loi, rew.shape[0]))
         est_r, est_c = greedy_estimate(
             obs.object_xy[top_i], top_r, top_r > 0, obs.pose[:2], horizon, cfg.detour
@@ -191,15 +234,16 @@ class BFSOP(TourStrategy):
         worth = est_r / jnp.maximum(est_c, 1e-3) > yield_rate
         worth = worth | (remaining <= np.float32(cfg.budget_margin) * est_c)
         worth = worth | (pending.sum() >= preset.n_loi)
-        # While exploring: any change of the pending set. While touring (re-planning), only
-        # a newly detected landmark: the tour's own visits shrink the set as planned.
-        new = jnp.any(pending & ~rule.considered)
-        changed = jnp.where(touring, new, jnp.any(pending != rule.considered))
+        # While exploring: any change of the pending landmarks or their rewards. While
+        # touring (re-planning), only a newly detected landmark: the tour's own visits
+        # shrink the set as planned.
+        new = jnp.any((reward > 0) & (rule.considered <= 0))
+        changed = jnp.where(touring, new, jnp.any(reward != rule.considered))
         want = (est_r > 0) & worth & changed
-        # An evaluation is not repeated until the pending set changes (with nothing left to
+        # An evaluation is not repeated until something changes (with nothing left to
         # explore, the tour strategy switches regardless); a tour's visits change it.
         keep = touring & ~(new & np.bool_(cfg.replan))
-        return want, rule.replace(considered=jnp.where(keep, rule.considered, pending))
+        return want, rule.replace(considered=jnp.where(keep, rule.considered, reward))
 
     def rule_update(self, rule, before, after, info: StepInfo, exploring):
         cfg = self.config

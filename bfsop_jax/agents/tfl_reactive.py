@@ -31,6 +31,13 @@ class TFLReactiveConfig:
     radius_m: float = 4.0  # trigger radius around the agent (metres, straight line)
     timer_m: float = 40.0  # metres explored with landmarks pending before a forced visit
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
+    # True: a landmark stays pending until every coverage point of its footprint has been
+    # seen (or a visit sees nothing new), each visit completing what it can; False (the
+    # default, chosen on validation houses): retired at its first visit
+    cover: bool = False
+    # with cover: after a visit that leaves the landmark seen in part, go straight on to
+    # the nearest viewpoint that sees more of it (False: leave it pending for later tours)
+    complete: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,7 +52,7 @@ class TFLReactive(TourStrategy):
         # (metres explored with landmarks pending since the last visit, pending now)
         return jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
-    def wants_tour(self, rule, obs, pending, has_frontier, touring, preset):
+    def wants_tour(self, rule, obs, pending, reward, has_frontier, touring, preset):
         # Squared distances from whole 1/64 m coordinates: exact integer comparisons.
         q = jnp.round(obs.object_xy * 64.0).astype(jnp.int32)
         p = jnp.round(obs.pose[:2] * 64.0).astype(jnp.int32)

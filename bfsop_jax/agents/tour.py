@@ -7,8 +7,19 @@ to exploit: the SOP instance is posed on the online map
 (:func:`bfsop_jax.sop.builder.build_instance`, the agent's observation only), its
 *planner* returns a tour of viewpoints, and the tour is executed to its end, truncated by
 the budget gate; a viewpoint that turns out unreachable, or stays blocked for
-``max_attempts`` macro steps, is skipped. Visited landmarks are retired; then the agent
-explores again. No mode flip mid-tour.
+``max_attempts`` macro steps, is skipped. Then the agent explores again. No mode flip
+mid-tour.
+
+Visits: by default (``config.cover = False``) a landmark is retired once a viewpoint
+of it is reached. A viewpoint sees only part of a large landmark within the
+verification distance, so ``config.cover = True`` keeps coverage instead: on arrival the
+coverage points the agent sees (within reach and inside its view,
+:func:`bfsop_jax.sop.builder.covered_from`) are marked; unless all are seen, or the
+visit saw nothing new, the geodesically nearest viewpoint that sees an unseen point
+becomes the next goal (:func:`bfsop_jax.sop.builder.completion_viewpoint`) before the
+tour goes on. A landmark left seen in part stays pending with the posterior reward of
+its unseen part (:func:`landmark_rewards`), and later instances offer only viewpoints
+that see an unseen point.
 
 Common rules: a strategy with nothing left to explore exploits whatever is pending, and a
 chosen landmark without a single reachable viewpoint is retired at once (so no rule can
@@ -23,6 +34,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from bfsop_jax.agents.fbe import FBE, FBEMemory
@@ -30,7 +42,14 @@ from bfsop_jax.agents.rollout import Decision
 from bfsop_jax.agents.sparse import sparse_cond
 from bfsop_jax.config import Preset
 from bfsop_jax.env.types import Action, Observation, StepInfo
-from bfsop_jax.sop.builder import build_instance
+from bfsop_jax.sop.builder import (
+    COVER_POINTS,
+    build_instance,
+    completion_viewpoint,
+    coverage_points,
+    covered_from,
+    covered_reward,
+)
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 
 __all__ = ["SwitchMemory", "TourMemory", "TourStrategy", "landmark_rewards", "pending_landmarks"]
@@ -48,6 +67,14 @@ class TourMemory:
     position: jax.Array  # int32 []: next viewpoint
     attempts: jax.Array  # int32 []: blocked macro steps on the current viewpoint
     retired: jax.Array  # bool [M]: landmarks visited or given up
+    covered: jax.Array  # bool [M, P]: coverage points of each landmark seen on a visit
+    arrived_at: jax.Array  # int32 []: landmark whose viewpoint was just reached (-1: none)
+    # a completion viewpoint of the landmark just visited, inserted before the next slot
+    extra: jax.Array  # bool []: the current goal is the completion viewpoint
+    extra_goal: jax.Array  # float32 [2]
+    extra_look: jax.Array  # float32 [2]
+    extra_landmark: jax.Array  # int32 []: its landmark
+    extra_left: jax.Array  # float32 []: metres the walk to it may still take
 
 
 @struct.dataclass
@@ -61,10 +88,15 @@ class SwitchMemory:
     finished: jax.Array  # bool []: nothing was left to do (no frontier, no tour): stay idle
 
 
-def landmark_rewards(obs: Observation) -> jax.Array:
-    """float32 [M]: P(target | landmark type) of each detected object (0 if undetected)."""
+def landmark_rewards(obs: Observation, covered: jax.Array | None = None) -> jax.Array:
+    """float32 [M]: P(target | landmark type) of each detected object (0 if undetected).
+
+    With ``covered`` (bool [M, P], coverage points seen on visits) a landmark seen in part
+    is worth the posterior of its unseen part (:func:`bfsop_jax.sop.builder.covered_reward`).
+    """
     cat = obs.object_category
-    return jnp.where(cat >= 0, obs.prior[jnp.maximum(cat, 0), obs.category], 0.0)
+    reward = jnp.where(cat >= 0, obs.prior[jnp.maximum(cat, 0), obs.category], 0.0)
+    return reward if covered is None else covered_reward(reward, covered)
 
 
 def pending_landmarks(obs: Observation, retired: jax.Array) -> jax.Array:
@@ -72,7 +104,7 @@ def pending_landmarks(obs: Observation, retired: jax.Array) -> jax.Array:
     return obs.landmark & ~retired & (landmark_rewards(obs) > 0)
 
 
-def _empty_plan(preset: Preset) -> tuple[SOPInstance, Solution, jax.Array]:
+def _empty_plan(preset: Preset) -> tuple[SOPInstance, Solution, jax.Array, jax.Array]:
     n, k = preset.n_sop_nodes, preset.n_loi + 1
     inst = SOPInstance(
         cost=jnp.zeros((n, n), jnp.float32),
@@ -88,7 +120,53 @@ def _empty_plan(preset: Preset) -> tuple[SOPInstance, Solution, jax.Array]:
         reward=jnp.zeros((), jnp.float32),
         cost=jnp.zeros((), jnp.float32),
     )
-    return inst, plan, jnp.full((preset.n_loi,), -1, jnp.int32)
+    return inst, plan, jnp.full((preset.n_loi,), -1, jnp.int32), jnp.zeros((n, 2), jnp.float32)
+
+
+def _fold_arrival(
+    tour: TourMemory, obs: Observation, preset: Preset, complete: bool = True
+) -> TourMemory:
+    """Mark the coverage points seen from the viewpoint just reached (``tour.arrived_at``).
+
+    The landmark is retired when all are seen or the visit saw nothing new; otherwise the
+    nearest viewpoint that sees an unseen point becomes the next goal (``tour.extra``), so a
+    large landmark is covered in one visit, side after side, before the tour goes on.
+    """
+    lm = tour.arrived_at
+    arrived = lm >= 0
+    slot = jnp.maximum(lm, 0)
+    centre, half = obs.object_xy[slot], obs.object_half_extent[slot]
+    seen = covered_from(coverage_points(centre, half), obs.pose, preset) & arrived
+    before = tour.covered[slot]
+    after = before | seen
+    done = arrived & (jnp.all(after) | ~jnp.any(seen & ~before))
+    ok, goal, look, metres = sparse_cond(
+        arrived & ~done & np.bool_(complete),
+        lambda _, obs, c, h, a: completion_viewpoint(obs.belief, obs.pose[:2], c, h, a, preset),
+        lambda *_: (
+            jnp.zeros((), bool), jnp.zeros(2, jnp.float32), jnp.zeros(2, jnp.float32),
+            jnp.zeros((), jnp.float32),
+        ),
+        obs, centre, half, after,
+    )  # fmt: skip
+    ok = ok & (metres <= np.float32(COMPLETE_MAX_M))
+    extra = arrived & ~done & ok
+    return tour.replace(
+        covered=tour.covered.at[slot].set(jnp.where(arrived, after, before)),
+        retired=tour.retired.at[slot].max(done | (arrived & ~ok & np.bool_(complete))),
+        arrived_at=jnp.full((), -1, jnp.int32),
+        touring=tour.touring | extra,
+        extra=tour.extra | extra,
+        extra_goal=jnp.where(extra, goal, tour.extra_goal),
+        extra_look=jnp.where(extra, look, tour.extra_look),
+        extra_landmark=jnp.where(extra, lm, tour.extra_landmark),
+        # the walk to it may grow as the map fills in: given up past twice the estimate
+        extra_left=jnp.where(extra, 2.0 * metres + 1.0, tour.extra_left),
+    )
+
+
+COMPLETE_MAX_M = 3.0
+"""A completion viewpoint is taken only this close (metres, geodesic on the optimistic map)."""
 
 
 class TourStrategy:
@@ -98,7 +176,8 @@ class TourStrategy:
     ``explorer`` and ``record``) supplies the switch rule and the planner:
 
     * ``rule_init(obs, preset) -> rule``
-    * ``wants_tour(rule, obs, pending, has_frontier, touring, preset) -> (bool [], rule)``
+    * ``wants_tour(rule, obs, pending, reward, has_frontier, touring, preset)
+      -> (bool [], rule)`` (``reward`` float32 [M]: each landmark's current reward)
     * ``rule_update(rule, before, after, info, exploring) -> rule``
     * ``plan(mask, instance) -> Solution``
     """
@@ -119,13 +198,31 @@ class TourStrategy:
         is still pending, the rest of the old tour included."""
         return bool(getattr(self.config, "replan", False))
 
+    @property
+    def completes(self) -> bool:
+        """With coverage: whether a visit seen in part goes on to a completion viewpoint."""
+        return bool(getattr(self.config, "complete", True))
+
+    @property
+    def covers(self) -> bool:
+        """Whether a landmark stays pending until its coverage points are seen, rather than
+        being retired at its first visit (the default)."""
+        return bool(getattr(self.config, "cover", False))
+
+    def tour_length(self, instance: SOPInstance, nodes: jax.Array) -> jax.Array:
+        """int32 []: how many viewpoints of the plan to execute (all, by default).
+
+        ``nodes`` int32 [n_loi + 1]: the plan's start node, then viewpoints (-1 padded).
+        """
+        return (nodes[1:] > 0).sum().astype(jnp.int32)
+
     # -- hooks (overridden) ------------------------------------------------------------
     def rule_init(self, obs: Observation, preset: Preset) -> Any:
         return ()
 
     def wants_tour(
-        self, rule: Any, obs: Observation, pending: jax.Array, has_frontier: jax.Array,
-        touring: jax.Array, preset: Preset,
+        self, rule: Any, obs: Observation, pending: jax.Array, reward: jax.Array,
+        has_frontier: jax.Array, touring: jax.Array, preset: Preset,
     ) -> tuple[jax.Array, Any]:  # fmt: skip
         raise NotImplementedError
 
@@ -154,6 +251,13 @@ class TourStrategy:
             position=jnp.zeros((), jnp.int32),
             attempts=jnp.zeros((), jnp.int32),
             retired=jnp.zeros((m,), bool),
+            covered=jnp.zeros((m, COVER_POINTS), bool),
+            arrived_at=jnp.full((), -1, jnp.int32),
+            extra=jnp.zeros((), bool),
+            extra_goal=jnp.zeros((2,), jnp.float32),
+            extra_look=jnp.zeros((2,), jnp.float32),
+            extra_landmark=jnp.full((), -1, jnp.int32),
+            extra_left=jnp.zeros((), jnp.float32),
         )
         return SwitchMemory(
             tour=tour,
@@ -167,27 +271,33 @@ class TourStrategy:
         self, memory: SwitchMemory, obs: Observation, preset: Preset
     ) -> tuple[Action, Decision, SwitchMemory]:
         tour = memory.tour
+        if self.covers:
+            tour = _fold_arrival(tour, obs, preset, self.completes)
         explore_action, has_frontier, explore_memory = self.explorer.explore(
             memory.explore, obs, preset
         )
         pending = pending_landmarks(obs, tour.retired)
+        reward = jnp.where(
+            pending, landmark_rewards(obs, tour.covered if self.covers else None), 0.0
+        )
         want, rule = self.wants_tour(
-            memory.rule, obs, pending, has_frontier, tour.touring, preset
+            memory.rule, obs, pending, reward, has_frontier, tour.touring, preset
         )
         can = ~obs.done & ~memory.finished & jnp.any(pending)
         switch = can & ~tour.touring & (want | ~has_frontier)
         if self.replans:
             switch = switch | (can & tour.touring & want)
 
-        def posed(mask, obs, pending):
+        def posed(mask, obs, pending, covered):
             inst, choice = build_instance(
                 obs.belief, obs.pose[:2], self.tour_budget(obs), pending, obs.object_category,
                 obs.object_xy, obs.object_half_extent, obs.prior, obs.category, preset,
+                covered if self.covers else None,
             )  # fmt: skip
-            return inst, self.plan(mask, inst), choice.index
+            return inst, self.plan(mask, inst), choice.index, choice.look
 
-        inst, plan, loi_index = sparse_cond(
-            switch, posed, lambda obs, pending: _empty_plan(preset), obs, pending
+        inst, plan, loi_index, node_look = sparse_cond(
+            switch, posed, lambda *_: _empty_plan(preset), obs, pending, tour.covered
         )
 
         # Tour slots from the plan: the start node first, then viewpoints.
@@ -196,8 +306,8 @@ class TourStrategy:
         sets = inst.set_id[jnp.maximum(nodes, 0)]
         landmark = jnp.where(is_vp, loi_index[jnp.maximum(sets - 1, 0)], -1)
         goal = inst.coords[jnp.maximum(nodes, 0)]
-        look = obs.object_xy[jnp.maximum(landmark, 0)]
-        length = is_vp.sum().astype(jnp.int32)
+        look = node_look[jnp.maximum(nodes, 0)]
+        length = self.tour_length(inst, plan.nodes[: preset.n_loi + 1])
         started = switch & (length > 0)
         # A chosen landmark with no reachable viewpoint cannot be toured: retire it.
         hopeless = switch & (loi_index >= 0) & (inst.set_reward[1:] <= 0)
@@ -225,7 +335,9 @@ class TourStrategy:
         )
         pos = jnp.minimum(tour.position, preset.n_loi - 1)
         tour_action = Action(
-            goal_xy=tour.goal[pos], look_xy=tour.look[pos], look=jnp.ones((), bool)
+            goal_xy=jnp.where(tour.extra, tour.extra_goal, tour.goal[pos]),
+            look_xy=jnp.where(tour.extra, tour.extra_look, tour.look[pos]),
+            look=jnp.ones((), bool),
         )
         action = jax.tree_util.tree_map(
             lambda a, b: jnp.where(tour.touring, a, b), tour_action, explore_action
@@ -245,18 +357,30 @@ class TourStrategy:
         tour = memory.tour
         pos = jnp.minimum(tour.position, tour.landmark.shape[0] - 1)
         attempts = tour.attempts + info.blocked.astype(jnp.int32)
-        done_vp = tour.touring & (info.arrived | info.unreachable | (attempts >= self.max_attempts))
+        ended = info.arrived | info.unreachable | (attempts >= self.max_attempts)
+        done_vp = tour.touring & ~tour.extra & ended  # a tour slot
+        extra_left = tour.extra_left - jnp.where(tour.extra, info.travelled, 0.0)
+        done_x = tour.touring & tour.extra & (ended | (extra_left < 0))  # a completion
         lm = tour.landmark[pos]
-        retired = tour.retired.at[jnp.maximum(lm, 0)].max(done_vp & (lm >= 0))
+        # An arrival is judged by what the agent sees there, at the next act (_fold_arrival).
+        judged = done_vp & (lm >= 0) & info.arrived & np.bool_(self.covers)
+        retired = tour.retired.at[jnp.maximum(lm, 0)].max(done_vp & (lm >= 0) & ~judged)
+        xlm = tour.extra_landmark  # a failed completion leaves its landmark pending
+        arrived_at = jnp.where(judged, lm, tour.arrived_at)
+        arrived_at = jnp.where(done_x & info.arrived, xlm, arrived_at)
         position = tour.position + done_vp.astype(jnp.int32)
+        extra = tour.extra & ~done_x
         exploring = ~tour.touring
         explore = self.explorer.update(memory.explore, before, after, info)
         return memory.replace(
             tour=tour.replace(
-                touring=tour.touring & (position < tour.length),
+                touring=tour.touring & ((position < tour.length) | extra),
                 position=position,
-                attempts=jnp.where(done_vp, 0, attempts),
+                attempts=jnp.where(done_vp | done_x, 0, attempts),
                 retired=retired,
+                arrived_at=arrived_at,
+                extra=extra,
+                extra_left=extra_left,
             ),
             explore=jax.tree_util.tree_map(
                 lambda a, b: jnp.where(exploring, a, b), explore, memory.explore

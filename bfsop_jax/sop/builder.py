@@ -7,6 +7,13 @@ footprint, spread in angle around it. The set reward is the co-occurrence prior
 P(c | landmark category); costs are geodesic distances on the optimistic belief map;
 the budget is what remains of the episode's budget; the path is open (``end = -1``).
 
+Coverage: one viewpoint does not see all of a large footprint (a 2 m counter top, a
+bed) within the verification distance. Each footprint carries ``COVER_POINTS`` coverage
+points (the centres of its 3 x 3 split); a viewpoint is usable only if it sees a point
+not seen yet (within :func:`cover_radius`) and it faces their centroid. A landmark seen
+in part keeps the posterior reward of its unseen part (:func:`covered_reward`), so a
+tour strategy visits it again from another side when that pays.
+
 Fixed shapes: N = 1 + n_loi * n_viewpoints nodes and K = 1 + n_loi sets. Missing
 landmarks and viewpoints that are blocked or unreachable are padding nodes
 (``set_id = -1``); a landmark with no usable viewpoint keeps an empty zero-reward set.
@@ -16,6 +23,7 @@ So an agent with no pending landmark gets a valid instance whose plan is empty.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -27,10 +35,25 @@ from bfsop_jax.navigation.distance import distance_field, distance_matrix
 from bfsop_jax.navigation.grid import planning_blocked, xy_to_plan_cell
 from bfsop_jax.sop.types import SOPInstance
 
-__all__ = ["LandmarkChoice", "build_instance", "select_landmarks", "viewpoint_candidates"]
+__all__ = [
+    "COVER_POINTS",
+    "LandmarkChoice",
+    "build_instance",
+    "completion_viewpoint",
+    "cover_radius",
+    "coverage_points",
+    "covered_from",
+    "covered_reward",
+    "select_landmarks",
+    "viewpoint_candidates",
+]
 
 _N_ANGLES = 16  # candidate directions around a landmark
 _N_OFFSETS = 3  # candidate clearances between viewpoint_min_m and viewpoint_max_m
+_COVER_GRID = np.array([-2.0 / 3.0, 0.0, 2.0 / 3.0], np.float32)  # cell centres of a 3 x 3 split
+COVER_POINTS = _COVER_GRID.size**2
+"""Coverage points per landmark footprint (the centres of its 3 x 3 split)."""
+_CONE_MARGIN_DEG = 5.0  # a covered point lies this far inside the field of view
 
 
 @struct.dataclass
@@ -39,6 +62,59 @@ class LandmarkChoice:
 
     index: jax.Array  # int32 [n_loi]: object slot of LOI k (set k + 1), -1 = empty set
     reward: jax.Array  # float32 [n_loi]: its set reward (0 when empty)
+    look: Any = None  # float32 [N, 2]: the point each node's viewpoint faces (build_instance)
+
+
+def coverage_points(centre: jax.Array, half_extent: jax.Array) -> jax.Array:
+    """float32 [..., P, 2]: the centres of a 3 x 3 split of each footprint (P = 9).
+
+    Args: centre [..., 2], half_extent [..., 2] metres (axis-aligned footprints).
+    A target standing on a landmark lies in one of these cells; a point counts as seen
+    when a viewpoint had it within :func:`cover_radius` and inside its field of view.
+    """
+    fx, fy = np.meshgrid(_COVER_GRID, _COVER_GRID, indexing="ij")
+    frac = jnp.asarray(np.stack([fx.ravel(), fy.ravel()], axis=-1))  # [P, 2]
+    return centre[..., None, :] + half_extent[..., None, :] * frac
+
+
+def cover_radius(preset: Preset) -> float:
+    """Metres within which a coverage point counts as seen: the verification distance
+    less one planning cell (a target lies anywhere in its point's cell)."""
+    return preset.verify_distance_m - preset.plan_cell_size
+
+
+def covered_from(points: jax.Array, pose: jax.Array, preset: Preset) -> jax.Array:
+    """bool [..., P]: points within :func:`cover_radius` of ``pose`` and inside its view.
+
+    Args: points [..., P, 2] metres, pose [3] (x, y metres, heading radians). Positions
+    and the heading's direction are compared in whole 1/64 m units (exact integers), so
+    a batched and a single call decide alike.
+    """
+    q = jnp.round(points * 64.0).astype(jnp.int32) - jnp.round(pose[:2] * 64.0).astype(jnp.int32)
+    d2 = q[..., 0] * q[..., 0] + q[..., 1] * q[..., 1]
+    r = int(round(cover_radius(preset) * 64.0))
+    h = jnp.round(jnp.stack([jnp.cos(pose[2]), jnp.sin(pose[2])]) * 64.0).astype(jnp.int32)
+    dot = q[..., 0] * h[0] + q[..., 1] * h[1]  # |q| <= r: no overflow
+    half = math.radians(preset.fov_deg / 2.0 - _CONE_MARGIN_DEG)
+    c2 = np.float32(math.cos(half) ** 2)
+    h2 = (h[0] * h[0] + h[1] * h[1]).astype(jnp.float32)
+    dotf = dot.astype(jnp.float32)
+    in_cone = (dot >= 0) & (dotf * dotf >= d2.astype(jnp.float32) * h2 * c2)
+    return (d2 <= r * r) & (in_cone | (d2 == 0))
+
+
+def covered_reward(reward: jax.Array, covered: jax.Array) -> jax.Array:
+    """float32 [...]: P(target on the landmark's unseen part | none seen on the rest).
+
+    ``reward`` [...] is the prior P(target | landmark type), ``covered`` [..., P] bool the
+    coverage points already seen. With a share ``u`` unseen and targets spread evenly over
+    the footprint, Bayes gives ``p u / (1 - p (1 - u))``: 0 once all is seen, ``p`` before.
+    """
+    p = jnp.asarray(reward, jnp.float32)
+    n = covered.shape[-1]
+    u = (n - covered.sum(-1)).astype(jnp.float32) / np.float32(n)
+    seen = jax.lax.optimization_barrier(p * (1.0 - u))  # no fused multiply-add below
+    return jnp.where(u >= 1.0, p, p * u / (1.0 - seen))
 
 
 def select_landmarks(
@@ -49,8 +125,9 @@ def select_landmarks(
     prior: jax.Array,
     category: jax.Array,
     preset: Preset,
+    covered: jax.Array | None = None,
 ) -> LandmarkChoice:
-    """Top ``n_loi`` candidate landmarks by prior reward (nearer first among equals).
+    """Top ``n_loi`` candidate landmarks by reward (nearer first among equals).
 
     Args:
         candidates: bool [M], landmarks the agent has detected and not yet visited.
@@ -58,8 +135,12 @@ def select_landmarks(
         agent_xy: [2] metres.
         prior: float32 [N_CATEGORIES, N_TARGETS].
         category: int32 [] target category.
+        covered: optional bool [M, P] coverage points already seen: the reward is then
+            :func:`covered_reward` of the prior (a landmark seen in part is worth less).
     """
     reward = prior[jnp.maximum(object_category, 0), category]
+    if covered is not None:
+        reward = covered_reward(reward, covered)
     ok = candidates & (object_category >= 0) & (reward > 0)
     dist = jnp.linalg.norm(object_xy - agent_xy, axis=-1)
     # Rewards are probabilities in [0, 1]; the distance term only breaks ties.
@@ -112,14 +193,80 @@ def viewpoint_candidates(
     return xy, jnp.asarray(angle), jnp.asarray(offset)
 
 
+def _viewpoint_coverage(
+    xy: jax.Array, points: jax.Array, unseen: jax.Array, centre: jax.Array, preset: Preset
+) -> tuple[jax.Array, jax.Array]:
+    """What a visit to each candidate viewpoint would mark, and where it looks.
+
+    Args: xy [C, 2] candidate viewpoints, points [P, 2] a landmark's coverage points,
+    unseen [P] bool, centre [2] the landmark's centre (metres). A viewpoint faces the
+    centroid of the unseen points within :func:`cover_radius` (the centre when there is
+    none) and marks those of them :func:`covered_from` accepts from there: the test made
+    on arrival, so a viewpoint is offered only if it really sees something new.
+    Returns ``(sees [C, P] bool, look [C, 2])``.
+    """
+    gap = xy[:, None, :] - points[None, :, :]  # [C, P, 2]
+    near = (jnp.sum(gap * gap, axis=-1) <= cover_radius(preset) ** 2) & unseen[None, :]
+    n_near = near.sum(-1)
+    centroid = jnp.sum(jnp.where(near[..., None], points[None], 0.0), axis=1)
+    look = jnp.where(
+        (n_near > 0)[:, None],
+        centroid / jnp.maximum(n_near, 1)[:, None].astype(jnp.float32),
+        centre[None, :],
+    )
+    facing = jnp.arctan2(look[:, 1] - xy[:, 1], look[:, 0] - xy[:, 0])
+    pose = jnp.concatenate([xy, facing[:, None]], axis=-1)  # [C, 3]
+    sees = jax.vmap(lambda p: covered_from(points, p, preset))(pose) & unseen[None, :]
+    return sees, look
+
+
+def completion_viewpoint(
+    belief: jax.Array,
+    agent_xy: jax.Array,
+    centre: jax.Array,
+    half_extent: jax.Array,
+    covered: jax.Array,
+    preset: Preset,
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """The next viewpoint that completes the coverage of a landmark just visited.
+
+    Args: belief [H, W] log-odds (the agent's map), agent_xy [2], centre [2] and
+    half_extent [2] of the landmark (metres), covered [P] bool its coverage points seen.
+    Among the candidate viewpoints (:func:`viewpoint_candidates`) on free planning cells
+    that see an unseen point, the one nearest the agent (geodesic, optimistic map).
+    Returns ``(ok bool [], xy [2], look [2], metres [])``: ``ok`` is false when none is
+    left; ``metres`` is its geodesic distance on the optimistic map.
+    """
+    xy, _, _ = viewpoint_candidates(centre, half_extent, preset)  # [C, 2]
+    points = coverage_points(centre, half_extent)  # [P, 2]
+    sees, look = _viewpoint_coverage(xy, points, ~covered, centre, preset)
+    hp, wp = preset.plan_shape
+    cells = xy_to_plan_cell(xy, preset)
+    inside = (
+        (xy[:, 0] >= 0)
+        & (xy[:, 1] >= 0)
+        & (xy[:, 0] < wp * preset.plan_cell_size)
+        & (xy[:, 1] < hp * preset.plan_cell_size)
+    )
+    blocked = planning_blocked(belief, preset)
+    reach = distance_field(blocked, agent_xy, preset)[cells[:, 0], cells[:, 1]]
+    usable = inside & ~blocked[cells[:, 0], cells[:, 1]] & jnp.any(sees, axis=-1)
+    usable = usable & jnp.isfinite(reach)
+    best = jnp.argmin(jnp.where(usable, reach, jnp.inf))
+    return usable[best], xy[best], look[best], jnp.where(usable[best], reach[best], 0.0)
+
+
 def _choose_spread(
-    usable: jax.Array, angle: jax.Array, offset: jax.Array, k: int
+    usable: jax.Array, angle: jax.Array, offset: jax.Array, k: int, seen: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
     """Greedily pick ``k`` usable candidates spread in angle (closest clearance first).
 
+    ``seen`` [C] is the share of the landmark each candidate would cover (0 without
+    coverage); among candidates equally spread, those that cover more come first.
     Returns ``(index [k], valid [k])``.
     """
-    preference = -offset  # tight viewpoints see the landmark's surface best
+    # tight viewpoints see the landmark's surface best; covering viewpoints see more of it
+    preference = 10.0 * seen - offset
 
     def pick(carry, _):
         taken, picked_angles, n_picked = carry
@@ -150,6 +297,7 @@ def build_instance(
     prior: jax.Array,
     category: jax.Array,
     preset: Preset,
+    covered: jax.Array | None = None,
 ) -> tuple[SOPInstance, LandmarkChoice]:
     """The SOP instance of the current exploitation decision (jit/vmap-able).
 
@@ -162,14 +310,19 @@ def build_instance(
             detected landmarks (their observed type, position and footprint).
         prior: float32 [N_CATEGORIES, N_TARGETS] co-occurrence prior.
         category: int32 [] target category.
+        covered: optional bool [M, P] coverage points of each landmark already seen
+            (:func:`coverage_points`); default None: no coverage, every viewpoint faces the
+            landmark's centre. With it, a viewpoint is usable only if it sees an unseen
+            point (:func:`covered_from`), and faces the centroid of those within reach.
 
-    Returns ``(instance, landmarks)``: N = 1 + n_loi * n_viewpoints, K = 1 + n_loi.
+    Returns ``(instance, landmarks)``: N = 1 + n_loi * n_viewpoints, K = 1 + n_loi;
+    ``landmarks.look`` [N, 2] is the point each node's viewpoint faces.
     """
     preset = require_preset(preset)
     agent_xy = jnp.asarray(agent_xy, jnp.float32)
     blocked = planning_blocked(belief, preset)
     choice = select_landmarks(
-        candidates, object_category, object_xy, agent_xy, prior, category, preset
+        candidates, object_category, object_xy, agent_xy, prior, category, preset, covered
     )
     lm = jnp.maximum(choice.index, 0)
     has_lm = choice.index >= 0
@@ -189,11 +342,22 @@ def build_instance(
     reach = from_agent[cells[..., 0], cells[..., 1]]
     usable = inside & ~blocked[cells[..., 0], cells[..., 1]] & jnp.isfinite(reach)
     usable = usable & has_lm[:, None]
+    if covered is None:  # every viewpoint faces the landmark's centre
+        look_c = jnp.broadcast_to(object_xy[lm][:, None, :], xy.shape)
+        share = jnp.zeros(xy.shape[:-1], jnp.float32)
+    else:  # a viewpoint must see a coverage point not seen yet, and faces their centroid
+        points = coverage_points(object_xy[lm], object_half_extent[lm])  # [L, P, 2]
+        sees, look_c = jax.vmap(_viewpoint_coverage, in_axes=(0, 0, 0, 0, None))(
+            xy, points, ~covered[lm], object_xy[lm], preset
+        )  # [L, C, P], [L, C, 2]
+        usable = usable & jnp.any(sees, axis=-1)
+        share = sees.sum(-1).astype(jnp.float32) / np.float32(COVER_POINTS)
 
-    pick, pick_ok = jax.vmap(_choose_spread, in_axes=(0, 0, 0, None))(
-        usable, angle, offset, preset.n_viewpoints
+    pick, pick_ok = jax.vmap(_choose_spread, in_axes=(0, 0, 0, None, 0))(
+        usable, angle, offset, preset.n_viewpoints, share
     )  # [L, V]
     vp_xy = jnp.take_along_axis(xy, pick[..., None], axis=1)  # [L, V, 2]
+    vp_look = jnp.take_along_axis(look_c, pick[..., None], axis=1)  # [L, V, 2]
 
     n_nodes = preset.n_sop_nodes
     coords = jnp.concatenate([agent_xy[None], vp_xy.reshape(-1, 2)], axis=0)
@@ -218,4 +382,5 @@ def build_instance(
         coords=coords,
     )
     assert coords.shape == (n_nodes, 2)
-    return instance, choice.replace(reward=set_reward[1:])
+    look = jnp.concatenate([agent_xy[None], vp_look.reshape(-1, 2)], axis=0)
+    return instance, choice.replace(reward=set_reward[1:], look=look)

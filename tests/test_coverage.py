@@ -1,0 +1,161 @@
+"""Landmark coverage (``cover=True``) and the best-rate tour prefix of BF-SOP."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bfsop_jax.agents import (
+    BFSOP,
+    BFSOPConfig,
+    NearestNeighbourPlanner,
+    TFLReactive,
+    TFLReactiveConfig,
+    max_macro_steps,
+    rollout,
+)
+from bfsop_jax.agents.bfsop import best_rate_prefix
+from bfsop_jax.config import get_preset
+from bfsop_jax.env import reset
+from bfsop_jax.sop.builder import (
+    COVER_POINTS,
+    build_instance,
+    completion_viewpoint,
+    cover_radius,
+    coverage_points,
+    covered_from,
+    covered_reward,
+)
+from bfsop_jax.sop.types import SOPInstance
+from bfsop_jax.world import generate_house
+from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS, is_receptacle
+
+SMOKE = get_preset("smoke")
+PRIOR = jnp.full((N_CATEGORIES, N_TARGETS), 0.5)
+BUDGET = 30.0
+STEPS = max_macro_steps(BUDGET, SMOKE, slack=2.0)
+
+
+def test_covered_reward_is_the_posterior_of_the_unseen_part():
+    p = jnp.float32(0.4)
+    none = jnp.zeros(COVER_POINTS, bool)
+    assert float(covered_reward(p, none)) == pytest.approx(0.4)
+    assert float(covered_reward(p, ~none)) == 0.0
+    third = none.at[:3].set(True)  # a third seen, nothing found there
+    u = 6 / 9
+    assert float(covered_reward(p, third)) == pytest.approx(0.4 * u / (1 - 0.4 * (1 - u)))
+    # seeing more never raises the reward
+    rewards = [float(covered_reward(p, none.at[:k].set(True))) for k in range(COVER_POINTS + 1)]
+    assert all(a >= b for a, b in zip(rewards, rewards[1:], strict=False))
+
+
+def test_coverage_points_split_the_footprint():
+    pts = np.asarray(coverage_points(jnp.asarray([2.0, 3.0]), jnp.asarray([1.5, 0.3])))
+    assert pts.shape == (COVER_POINTS, 2)
+    np.testing.assert_allclose(pts.mean(0), [2.0, 3.0], atol=1e-6)
+    assert np.all(np.abs(pts[:, 0] - 2.0) <= 1.0 + 1e-6)
+    assert np.all(np.abs(pts[:, 1] - 3.0) <= 0.2 + 1e-6)
+
+
+def test_covered_from_needs_reach_and_view():
+    r = cover_radius(SMOKE)
+    pts = jnp.asarray([[r - 0.05, 0.0], [-(r - 0.05), 0.0], [r + 0.2, 0.0], [0.3, 0.6]])
+    facing_east = jnp.asarray([0.0, 0.0, 0.0])
+    seen = np.asarray(covered_from(pts, facing_east, SMOKE)).tolist()
+    # ahead within reach; behind; too far; 63 degrees off the heading (outside +-40)
+    assert seen == [True, False, False, False]
+    facing_west = jnp.asarray([0.0, 0.0, np.pi])
+    assert np.asarray(covered_from(pts, facing_west, SMOKE)).tolist()[:2] == [False, True]
+
+
+def test_completion_viewpoint_sees_an_unseen_point():
+    belief = jnp.zeros(SMOKE.grid_shape, jnp.float32)  # all unknown: optimistic, all free
+    centre, half = jnp.asarray([6.0, 6.0]), jnp.asarray([1.2, 0.4])
+    covered = jnp.zeros(COVER_POINTS, bool).at[:5].set(True)
+    ok, xy, look, metres = completion_viewpoint(
+        belief, jnp.asarray([3.0, 6.0]), centre, half, covered, SMOKE
+    )
+    assert bool(ok) and 0.0 < float(metres) < 10.0
+    heading = jnp.arctan2(look[1] - xy[1], look[0] - xy[0])
+    seen = covered_from(coverage_points(centre, half), jnp.concatenate([xy, heading[None]]), SMOKE)
+    assert bool(jnp.any(seen & ~covered))
+    done, *_ = completion_viewpoint(
+        belief, jnp.asarray([3.0, 6.0]), centre, half, jnp.ones(COVER_POINTS, bool), SMOKE
+    )
+    assert not bool(done)
+
+
+@functools.cache
+def _state(seed: int = 0):
+    house = jax.jit(generate_house, static_argnums=1)(jax.random.key(seed), SMOKE)
+    return jax.jit(reset, static_argnums=3)(jax.random.key(seed), house, 0, SMOKE, PRIOR)
+
+
+def test_instance_with_coverage_drops_covered_landmarks_and_discounts_seen_ones():
+    state = _state(0)
+    h = state.house
+    some = np.zeros(h.object_category.shape, bool)
+    some[np.flatnonzero(is_receptacle(np.asarray(h.object_category)))[:3]] = True
+    cand = jnp.asarray(some)  # fewer landmarks than sets: a discounted one stays in
+    build = jax.jit(build_instance, static_argnums=9)
+    args = (state.belief, state.pose[:2], 100.0, cand, h.object_category, h.object_xy,
+            h.object_half_extent, state.prior, state.category, SMOKE)  # fmt: skip
+    plain, lois = build(*args)
+    first = int(np.asarray(lois.index)[0])
+    covered = jnp.zeros((cand.shape[0], COVER_POINTS), bool)
+    none, lois0 = build(*args, covered)
+    # nothing seen yet: the same landmarks and rewards as without coverage
+    np.testing.assert_array_equal(np.asarray(lois0.index), np.asarray(lois.index))
+    np.testing.assert_allclose(np.asarray(none.set_reward), np.asarray(plain.set_reward))
+    part = covered.at[first, :4].set(True)
+    inst, lois1 = build(*args, part)
+    k = int(np.flatnonzero(np.asarray(lois1.index) == first)[0])
+    assert 0 < float(inst.set_reward[k + 1]) < float(plain.set_reward[1])
+    full = covered.at[first].set(True)
+    _, lois2 = build(*args, full)
+    assert first not in np.asarray(lois2.index).tolist()
+
+
+@functools.cache
+def _states(seeds: tuple[int, ...]):
+    keys = jax.vmap(jax.random.key)(jnp.asarray(seeds))
+    houses = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(keys, SMOKE)
+    run = jax.vmap(lambda k, h: reset(k, h, 2, SMOKE, PRIOR, BUDGET))
+    return jax.jit(run)(keys, houses)
+
+
+COVERING = (
+    TFLReactive(TFLReactiveConfig(cover=True, complete=False)),
+    BFSOP(NearestNeighbourPlanner(), BFSOPConfig(cover=True, best_rate_prefix=True)),
+)
+
+
+@pytest.mark.parametrize("strategy", COVERING, ids=["tfl_cover", "bfsop_cover_prefix"])
+def test_covering_strategies_are_batch_invariant_and_mark_coverage(strategy):
+    states = _states((1000000, 1000001))
+    roll = jax.jit(jax.vmap(lambda s: rollout(s, strategy, SMOKE, STEPS)))
+    final, batched = roll(states)
+    assert int(batched.switched.sum()) >= 1
+    single = jax.jit(lambda s: rollout(s, strategy, SMOKE, STEPS))
+    for i in range(2):
+        _, alone = single(jax.tree_util.tree_map(lambda a, i=i: a[i], states))
+        np.testing.assert_array_equal(np.asarray(alone.poses), np.asarray(batched.poses[i]))
+        np.testing.assert_array_equal(np.asarray(alone.touring), np.asarray(batched.touring[i]))
+
+
+def test_best_rate_prefix_stops_before_a_costly_leg():
+    # start at x=0; sets 1..3 at x=1, 2 and 20 with rewards 0.5 each
+    x = np.asarray([0.0, 1.0, 2.0, 20.0])
+    cost = np.abs(x[:, None] - x[None]).astype(np.float32)
+    inst = SOPInstance.create(cost, [0, 1, 2, 3], [0.0, 0.5, 0.5, 0.5], 0, -1, 100.0,
+                              np.stack([x, 0 * x], 1))  # fmt: skip
+    inst = jax.tree_util.tree_map(jnp.asarray, inst)
+    nodes = jnp.asarray([0, 1, 2, 3, -1], jnp.int32)
+    assert int(best_rate_prefix(inst, nodes)) == 2  # 1.0 / 2 m beats 1.5 / 20 m
+    assert int(best_rate_prefix(inst, jnp.asarray([0, -1, -1, -1, -1], jnp.int32))) == 0
+    # a tie goes to the longer prefix: x = 1, 2 at rewards 0.5, 0.5 -> 0.5/m both times
+    assert int(best_rate_prefix(inst, jnp.asarray([0, 1, 2, -1, -1], jnp.int32))) == 2
