@@ -23,12 +23,14 @@ from bfsop_jax.config import get_preset
 from bfsop_jax.env import reset
 from bfsop_jax.sop.builder import (
     COVER_POINTS,
+    PART_SPLIT_M,
     build_instance,
     completion_viewpoint,
     cover_radius,
     coverage_points,
     covered_from,
     covered_reward,
+    part_masks,
 )
 from bfsop_jax.sop.types import SOPInstance
 from bfsop_jax.world import generate_house
@@ -131,10 +133,13 @@ def _states(seeds: tuple[int, ...]):
 COVERING = (
     TFLReactive(TFLReactiveConfig(cover=True, complete=False)),
     BFSOP(NearestNeighbourPlanner(), BFSOPConfig(cover=True, best_rate_prefix=True)),
+    BFSOP(NearestNeighbourPlanner(), BFSOPConfig(cover=True, parts=True, complete=False)),
 )
 
 
-@pytest.mark.parametrize("strategy", COVERING, ids=["tfl_cover", "bfsop_cover_prefix"])
+@pytest.mark.parametrize(
+    "strategy", COVERING, ids=["tfl_cover", "bfsop_cover_prefix", "bfsop_parts"]
+)
 def test_covering_strategies_are_batch_invariant_and_mark_coverage(strategy):
     states = _states((1000000, 1000001))
     roll = jax.jit(jax.vmap(lambda s: rollout(s, strategy, SMOKE, STEPS)))
@@ -159,3 +164,46 @@ def test_best_rate_prefix_stops_before_a_costly_leg():
     assert int(best_rate_prefix(inst, jnp.asarray([0, -1, -1, -1, -1], jnp.int32))) == 0
     # a tie goes to the longer prefix: x = 1, 2 at rewards 0.5, 0.5 -> 0.5/m both times
     assert int(best_rate_prefix(inst, jnp.asarray([0, 1, 2, -1, -1], jnp.int32))) == 2
+
+
+def test_part_masks_split_long_footprints_in_thirds():
+    long = np.asarray(part_masks(jnp.asarray([PART_SPLIT_M, 0.3])))  # 2.4 m along x
+    assert long.shape == (3, COVER_POINTS)
+    assert long.sum(0).tolist() == [1] * COVER_POINTS  # disjoint, every point in one
+    assert long.sum(1).tolist() == [3, 3, 3]
+    pts = np.asarray(coverage_points(jnp.zeros(2), jnp.asarray([PART_SPLIT_M, 0.3])))
+    xs = [sorted(set(np.round(pts[m, 0], 3))) for m in long]
+    assert all(len(x) == 1 for x in xs) and xs[0] < xs[1] < xs[2]  # thirds along x
+    tall = np.asarray(part_masks(jnp.asarray([0.3, PART_SPLIT_M])))
+    ys = [sorted(set(np.round(pts[m, 0], 3))) for m in tall]  # x varies inside a part
+    assert all(len(y) == 3 for y in ys)
+    short = np.asarray(part_masks(jnp.asarray([0.25, 0.25])))
+    assert short[0].all() and not short[1:].any()
+
+
+def test_instance_with_parts_splits_a_long_landmark():
+    state = _state(0)
+    h = state.house
+    half = np.asarray(h.object_half_extent)
+    rec = np.flatnonzero(is_receptacle(np.asarray(h.object_category)))
+    long = [int(m) for m in rec if 2 * half[m].max() > PART_SPLIT_M]
+    assert long, "no long landmark in this house: the test would be vacuous"
+    cand = np.zeros(h.object_category.shape, bool)
+    cand[long[0]] = True
+    covered = jnp.zeros((cand.shape[0], COVER_POINTS), bool)
+    args = (state.belief, state.pose[:2], 100.0, jnp.asarray(cand), h.object_category,
+            h.object_xy, h.object_half_extent, state.prior, state.category, SMOKE,
+            covered)  # fmt: skip
+    build = jax.jit(build_instance, static_argnums=(9, 11))
+    whole, _ = build(*args, False)
+    split, choice = build(*args, True)
+    index = np.asarray(choice.index)
+    assert (index == long[0]).sum() == 3 and (index >= 0).sum() == 3
+    part = np.asarray(choice.part)
+    assert part[index >= 0].sum(0).tolist() == [1] * COVER_POINTS
+    rewards = np.asarray(split.set_reward)[1:][index >= 0]
+    # the parts that have viewpoints share the landmark's reward by their points
+    assert rewards.sum() <= float(whole.set_reward[1]) + 1e-6
+    assert np.all(rewards <= float(whole.set_reward[1]) / 3 + 1e-6)
+    with pytest.raises(ValueError, match="parts=True needs covered"):
+        build_instance(*args[:10], None, True)

@@ -73,6 +73,9 @@ class BFSOPConfig:
     # with cover: after a visit that leaves the landmark seen in part, go straight on to
     # the nearest viewpoint that sees more of it (False: leave it pending for later tours)
     complete: bool = True
+    # with cover: SOP sets are landmark parts (a long footprint's thirds), so one tour can
+    # visit a large landmark from several sides (False: one set per landmark)
+    parts: bool = False
 
 
 @struct.dataclass

@@ -165,6 +165,22 @@ def _fold_arrival(
     )
 
 
+def _skip_retired(tour: TourMemory) -> TourMemory:
+    """Move past the tour's slots whose landmark was retired meanwhile (a landmark with
+    several slots, one per part, is retired once a visit has seen all of it)."""
+    idx = jnp.arange(tour.landmark.shape[0])
+    lm = tour.landmark
+    live = (idx >= tour.position) & (idx < tour.length) & ~tour.retired[jnp.maximum(lm, 0)]
+    nxt = jnp.where(jnp.any(live), jnp.argmax(live), tour.length).astype(jnp.int32)
+    moving = tour.touring & ~tour.extra
+    position = jnp.where(moving, nxt, tour.position)
+    return tour.replace(
+        position=position,
+        attempts=jnp.where(moving & (position != tour.position), 0, tour.attempts),
+        touring=tour.touring & (tour.extra | (position < tour.length)),
+    )
+
+
 COMPLETE_MAX_M = 3.0
 """A completion viewpoint is taken only this close (metres, geodesic on the optimistic map)."""
 
@@ -197,6 +213,11 @@ class TourStrategy:
         runs to its end). A replacement plan starts from the agent's position over what
         is still pending, the rest of the old tour included."""
         return bool(getattr(self.config, "replan", False))
+
+    @property
+    def parts(self) -> bool:
+        """With coverage: whether SOP sets are landmark parts rather than landmarks."""
+        return bool(getattr(self.config, "parts", False))
 
     @property
     def completes(self) -> bool:
@@ -272,7 +293,7 @@ class TourStrategy:
     ) -> tuple[Action, Decision, SwitchMemory]:
         tour = memory.tour
         if self.covers:
-            tour = _fold_arrival(tour, obs, preset, self.completes)
+            tour = _skip_retired(_fold_arrival(tour, obs, preset, self.completes))
         explore_action, has_frontier, explore_memory = self.explorer.explore(
             memory.explore, obs, preset
         )
@@ -288,16 +309,22 @@ class TourStrategy:
         if self.replans:
             switch = switch | (can & tour.touring & want)
 
+        parts = self.covers and self.parts
+
         def posed(mask, obs, pending, covered):
             inst, choice = build_instance(
                 obs.belief, obs.pose[:2], self.tour_budget(obs), pending, obs.object_category,
                 obs.object_xy, obs.object_half_extent, obs.prior, obs.category, preset,
-                covered if self.covers else None,
+                covered if self.covers else None, parts,
             )  # fmt: skip
-            return inst, self.plan(mask, inst), choice.index, choice.look
+            part = choice.part if parts else jnp.zeros((preset.n_loi, COVER_POINTS), bool)
+            return inst, self.plan(mask, inst), choice.index, choice.look, part
 
-        inst, plan, loi_index, node_look = sparse_cond(
-            switch, posed, lambda *_: _empty_plan(preset), obs, pending, tour.covered
+        def unposed(*_):
+            return *_empty_plan(preset), jnp.zeros((preset.n_loi, COVER_POINTS), bool)
+
+        inst, plan, loi_index, node_look, set_part = sparse_cond(
+            switch, posed, unposed, obs, pending, tour.covered
         )
 
         # Tour slots from the plan: the start node first, then viewpoints.
@@ -309,9 +336,17 @@ class TourStrategy:
         look = node_look[jnp.maximum(nodes, 0)]
         length = self.tour_length(inst, plan.nodes[: preset.n_loi + 1])
         started = switch & (length > 0)
-        # A chosen landmark with no reachable viewpoint cannot be toured: retire it.
+        # A chosen landmark with no reachable viewpoint cannot be toured: retire it (with
+        # parts: give up that part's points, and retire the landmark once none is left).
         hopeless = switch & (loi_index >= 0) & (inst.set_reward[1:] <= 0)
-        retired = tour.retired.at[jnp.maximum(loi_index, 0)].max(hopeless)
+        slot = jnp.maximum(loi_index, 0)
+        if parts:
+            gone = (hopeless[:, None] & set_part).astype(jnp.int32)
+            covered = tour.covered.astype(jnp.int32).at[slot].max(gone).astype(bool)
+            retired = tour.retired.at[slot].max(hopeless & jnp.all(covered[slot], axis=-1))
+            tour = tour.replace(covered=covered)
+        else:
+            retired = tour.retired.at[slot].max(hopeless)
         tour = tour.replace(
             touring=tour.touring | started,
             goal=jnp.where(started, goal, tour.goal),
@@ -358,10 +393,10 @@ class TourStrategy:
         pos = jnp.minimum(tour.position, tour.landmark.shape[0] - 1)
         attempts = tour.attempts + info.blocked.astype(jnp.int32)
         ended = info.arrived | info.unreachable | (attempts >= self.max_attempts)
+        lm = tour.landmark[pos]
         done_vp = tour.touring & ~tour.extra & ended  # a tour slot
         extra_left = tour.extra_left - jnp.where(tour.extra, info.travelled, 0.0)
         done_x = tour.touring & tour.extra & (ended | (extra_left < 0))  # a completion
-        lm = tour.landmark[pos]
         # An arrival is judged by what the agent sees there, at the next act (_fold_arrival).
         judged = done_vp & (lm >= 0) & info.arrived & np.bool_(self.covers)
         retired = tour.retired.at[jnp.maximum(lm, 0)].max(done_vp & (lm >= 0) & ~judged)

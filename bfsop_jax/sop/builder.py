@@ -38,12 +38,14 @@ from bfsop_jax.sop.types import SOPInstance
 __all__ = [
     "COVER_POINTS",
     "LandmarkChoice",
+    "PART_SPLIT_M",
     "build_instance",
     "completion_viewpoint",
     "cover_radius",
     "coverage_points",
     "covered_from",
     "covered_reward",
+    "part_masks",
     "select_landmarks",
     "viewpoint_candidates",
 ]
@@ -54,6 +56,9 @@ _COVER_GRID = np.array([-2.0 / 3.0, 0.0, 2.0 / 3.0], np.float32)  # cell centres
 COVER_POINTS = _COVER_GRID.size**2
 """Coverage points per landmark footprint (the centres of its 3 x 3 split)."""
 _CONE_MARGIN_DEG = 5.0  # a covered point lies this far inside the field of view
+PART_SPLIT_M = 1.2
+"""With ``parts``, footprints longer than this (metres) are split in three along their
+long side, one SOP set each."""
 
 
 @struct.dataclass
@@ -63,6 +68,7 @@ class LandmarkChoice:
     index: jax.Array  # int32 [n_loi]: object slot of LOI k (set k + 1), -1 = empty set
     reward: jax.Array  # float32 [n_loi]: its set reward (0 when empty)
     look: Any = None  # float32 [N, 2]: the point each node's viewpoint faces (build_instance)
+    part: Any = None  # bool [n_loi, P]: the coverage points set k + 1 stands for (parts=True)
 
 
 def coverage_points(centre: jax.Array, half_extent: jax.Array) -> jax.Array:
@@ -117,6 +123,24 @@ def covered_reward(reward: jax.Array, covered: jax.Array) -> jax.Array:
     return jnp.where(u >= 1.0, p, p * u / (1.0 - seen))
 
 
+def part_masks(half_extent: jax.Array) -> jax.Array:
+    """bool [..., 3, P]: the coverage points of each of a footprint's three parts.
+
+    Args: half_extent [..., 2] metres. A footprint longer than :data:`PART_SPLIT_M` is
+    split across its long side into three thirds of three points each; a shorter one is
+    one part (all points), and its other two parts are empty.
+    """
+    n = _COVER_GRID.size
+    idx = np.arange(COVER_POINTS)
+    along_x = np.stack([idx // n == k for k in range(n)])  # [3, P]
+    along_y = np.stack([idx % n == k for k in range(n)])
+    whole = np.stack([idx >= 0, idx < 0, idx < 0])
+    long_x = (half_extent[..., 0] >= half_extent[..., 1])[..., None, None]
+    split = (2.0 * jnp.max(half_extent, axis=-1) > PART_SPLIT_M)[..., None, None]
+    thirds = jnp.where(long_x, jnp.asarray(along_x), jnp.asarray(along_y))
+    return jnp.where(split, thirds, jnp.asarray(whole))
+
+
 def select_landmarks(
     candidates: jax.Array,
     object_category: jax.Array,
@@ -126,6 +150,7 @@ def select_landmarks(
     category: jax.Array,
     preset: Preset,
     covered: jax.Array | None = None,
+    object_half_extent: jax.Array | None = None,
 ) -> LandmarkChoice:
     """Top ``n_loi`` candidate landmarks by reward (nearer first among equals).
 
@@ -137,10 +162,17 @@ def select_landmarks(
         category: int32 [] target category.
         covered: optional bool [M, P] coverage points already seen: the reward is then
             :func:`covered_reward` of the prior (a landmark seen in part is worth less).
+        object_half_extent: with ``covered``, optional [M, 2] footprints: the sets are then
+            landmark *parts* (:func:`part_masks`), each worth its share of the
+            landmark's reward by unseen points, and ``part`` says which points each
+            set stands for.
     """
     reward = prior[jnp.maximum(object_category, 0), category]
     if covered is not None:
         reward = covered_reward(reward, covered)
+    if covered is not None and object_half_extent is not None:
+        return _select_parts(candidates, object_category, object_xy, agent_xy, reward,
+                             covered, object_half_extent, preset)  # fmt: skip
     ok = candidates & (object_category >= 0) & (reward > 0)
     dist = jnp.linalg.norm(object_xy - agent_xy, axis=-1)
     # Rewards are probabilities in [0, 1]; the distance term only breaks ties.
@@ -155,6 +187,40 @@ def select_landmarks(
         idx = jnp.concatenate([idx, jnp.full(pad, -1, jnp.int32)])
         rew = jnp.concatenate([rew, jnp.zeros(pad, rew.dtype)])
     return LandmarkChoice(index=idx, reward=rew.astype(jnp.float32))
+
+
+def _select_parts(
+    candidates: jax.Array,
+    object_category: jax.Array,
+    object_xy: jax.Array,
+    agent_xy: jax.Array,
+    reward: jax.Array,
+    covered: jax.Array,
+    half_extent: jax.Array,
+    preset: Preset,
+) -> LandmarkChoice:
+    """:func:`select_landmarks` over landmark parts: the top ``n_loi`` (landmark, part)."""
+    masks = part_masks(half_extent)  # [M, 3, P]
+    unseen = masks & ~covered[:, None, :]
+    n_part = unseen.sum(-1).astype(jnp.float32)  # [M, 3]
+    n_all = jnp.maximum((~covered).sum(-1), 1).astype(jnp.float32)  # [M]
+    part_reward = reward[:, None] * n_part / n_all[:, None]  # sums to the landmark's
+    ok = candidates[:, None] & (object_category >= 0)[:, None] & (part_reward > 0)
+    dist = jnp.linalg.norm(object_xy - agent_xy, axis=-1)
+    score = jnp.where(ok, part_reward - 1e-6 * dist[:, None], -jnp.inf).reshape(-1)
+    n = min(preset.n_loi, score.shape[-1])
+    top, pair = jax.lax.top_k(score, n)
+    valid = jnp.isfinite(top)
+    m, k = pair // 3, pair % 3
+    idx = jnp.where(valid, m, -1).astype(jnp.int32)
+    rew = jnp.where(valid, part_reward.reshape(-1)[pair], 0.0)
+    part = masks[m, k] & valid[:, None]
+    if n < preset.n_loi:
+        pad = preset.n_loi - n
+        idx = jnp.concatenate([idx, jnp.full(pad, -1, jnp.int32)])
+        rew = jnp.concatenate([rew, jnp.zeros(pad, rew.dtype)])
+        part = jnp.concatenate([part, jnp.zeros((pad, COVER_POINTS), bool)])
+    return LandmarkChoice(index=idx, reward=rew.astype(jnp.float32), part=part)
 
 
 def _candidate_offsets(preset: Preset) -> tuple[np.ndarray, np.ndarray]:
@@ -298,6 +364,7 @@ def build_instance(
     category: jax.Array,
     preset: Preset,
     covered: jax.Array | None = None,
+    parts: bool = False,
 ) -> tuple[SOPInstance, LandmarkChoice]:
     """The SOP instance of the current exploitation decision (jit/vmap-able).
 
@@ -314,6 +381,8 @@ def build_instance(
             (:func:`coverage_points`); default None: no coverage, every viewpoint faces the
             landmark's centre. With it, a viewpoint is usable only if it sees an unseen
             point (:func:`covered_from`), and faces the centroid of those within reach.
+        parts: with ``covered``, the sets are landmark parts (:func:`select_landmarks`):
+            a set's viewpoints must see an unseen point of its part.
 
     Returns ``(instance, landmarks)``: N = 1 + n_loi * n_viewpoints, K = 1 + n_loi;
     ``landmarks.look`` [N, 2] is the point each node's viewpoint faces.
@@ -321,9 +390,12 @@ def build_instance(
     preset = require_preset(preset)
     agent_xy = jnp.asarray(agent_xy, jnp.float32)
     blocked = planning_blocked(belief, preset)
+    if parts and covered is None:
+        raise ValueError("build_instance: parts=True needs covered (the coverage points seen)")
     choice = select_landmarks(
-        candidates, object_category, object_xy, agent_xy, prior, category, preset, covered
-    )
+        candidates, object_category, object_xy, agent_xy, prior, category, preset, covered,
+        object_half_extent if parts else None,
+    )  # fmt: skip
     lm = jnp.maximum(choice.index, 0)
     has_lm = choice.index >= 0
 
@@ -347,8 +419,9 @@ def build_instance(
         share = jnp.zeros(xy.shape[:-1], jnp.float32)
     else:  # a viewpoint must see a coverage point not seen yet, and faces their centroid
         points = coverage_points(object_xy[lm], object_half_extent[lm])  # [L, P, 2]
+        unseen = ~covered[lm] if choice.part is None else ~covered[lm] & choice.part
         sees, look_c = jax.vmap(_viewpoint_coverage, in_axes=(0, 0, 0, 0, None))(
-            xy, points, ~covered[lm], object_xy[lm], preset
+            xy, points, unseen, object_xy[lm], preset
         )  # [L, C, P], [L, C, 2]
         usable = usable & jnp.any(sees, axis=-1)
         share = sees.sum(-1).astype(jnp.float32) / np.float32(COVER_POINTS)
