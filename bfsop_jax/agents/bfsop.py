@@ -208,10 +208,9 @@ class BFSOP(TourStrategy):
         return self.planner(mask, instance)
 
     def tour_length(self, instance: SOPInstance, nodes: jax.Array) -> jax.Array:
-        full = super().tour_length(instance, nodes)
-        if not self.config.best_rate_prefix:
-            return full
-        return best_rate_prefix(instance, nodes)
+        if self.config.best_rate_prefix:
+            return best_rate_prefix(instance, nodes)
+        return super().tour_length(instance, nodes)
 
     def tour_budget(self, obs: Observation) -> jax.Array:
         return jnp.minimum(obs.remaining, np.float32(self.config.tour_horizon_m))
@@ -227,8 +226,7 @@ class BFSOP(TourStrategy):
         cfg = self.config
         remaining = obs.budget - obs.path_length
         horizon = self.tour_budget(obs)
-        rew = reward
-        top_r, top_i = jax.lax.top_k(rew, min(preset.n_loi, rew.shape[0]))
+        top_r, top_i = jax.lax.top_k(reward, min(preset.n_loi, reward.shape[0]))
         est_r, est_c = greedy_estimate(
             obs.object_xy[top_i], top_r, top_r > 0, obs.pose[:2], horizon, cfg.detour
         )
