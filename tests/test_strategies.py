@@ -237,3 +237,68 @@ def test_bfsop_replan_replaces_tours_under_way():
         seen += 1
     assert seen >= 1, "no re-plan in any episode: the test would be vacuous"
     assert int(a_plan.sum()) > int(p_plan.sum())
+
+
+
+def _walk_planned(strategy, states, n: int, check) -> int:
+    """Step episodes one by one; call ``check(obs, memory, frontier)`` (the state before
+    ``act``) at every step where the planner is called; return how many there were."""
+    act = jax.jit(strategy.act, static_argnums=2)
+    env_step = jax.jit(step, static_argnums=2)
+    update = jax.jit(strategy.update)
+    planned = 0
+    for b in range(n):
+        state = _one(states, b)
+        memory = strategy.init(observe(state), SMOKE)
+        for _ in range(60):
+            obs = observe(state)
+            _, frontier, _ = strategy.explorer.explore(memory.explore, obs, SMOKE)
+            action, decision, new_memory = act(memory, obs, SMOKE)
+            if bool(decision.planned):
+                check(obs, memory, bool(frontier))
+                planned += 1
+            memory = new_memory
+            if not bool(decision.has_goal) or bool(state.done):
+                break
+            state, info = env_step(state, action, SMOKE)
+            memory = update(memory, obs, observe(state), info)
+    return planned
+
+
+def test_bfsop_trigger_tours_only_near_a_landmark():
+    """``BFSOPConfig(trigger_m=r)`` (timer and budget rule off): every tour starts with a
+    pending landmark within ``r`` of the agent (or the landmark cap full, or no frontier),
+    and one does start; the eager default tours no later."""
+    states = _states((1000000, 1000001))
+    cfg = BFSOPConfig(trigger_m=2.5, timer_m=1e6, budget_margin=0.0)
+    strategy = BFSOP(NearestNeighbourPlanner(), cfg)
+
+    def check(obs, memory, frontier):
+        pending = np.asarray(pending_landmarks(obs, memory.tour.retired))
+        dist = np.linalg.norm(np.asarray(obs.object_xy) - np.asarray(obs.pose[:2]), axis=1)
+        near = bool(np.any(pending & (dist <= cfg.trigger_m)))
+        full = int(pending.sum()) >= SMOKE.n_loi
+        assert near or full or not frontier or bool(memory.tour.touring)
+
+    assert _walk_planned(strategy, states, 2, check) >= 1, "no tour: the test would be vacuous"
+    _, eager = _batched(BFSOP_NN)(states)
+    _, reactive = _batched(strategy)(states)
+    first = lambda traj: [int(np.argmax(np.asarray(traj.planned)[b])) for b in range(2)]  # noqa: E731
+    assert all(e <= r for e, r in zip(first(eager), first(reactive), strict=True))
+
+
+def test_bfsop_new_only_tours_when_a_new_landmark_appears():
+    """``BFSOPConfig(new_only=True)``: a tour starts (with a frontier left) only when a
+    landmark of interest is pending that was not at the switcher's last look. With
+    coverage, landmarks seen in part stay pending; the default tours again on them (8 of
+    its 18 plans on these episodes break the rule)."""
+    states = _states((1000000, 1000001, 1000002))
+    cfg = BFSOPConfig(new_only=True, cover=True, complete=False)
+    strategy = BFSOP(NearestNeighbourPlanner(), cfg)
+
+    def check(obs, memory, frontier):
+        pending = np.asarray(pending_landmarks(obs, memory.tour.retired))
+        before = np.asarray(memory.rule.considered) > 0
+        assert not frontier or bool(np.any(pending & ~before))
+
+    assert _walk_planned(strategy, states, 3, check) >= 1, "no tour: the test would be vacuous"

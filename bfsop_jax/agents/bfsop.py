@@ -36,7 +36,7 @@ from flax import struct
 
 from bfsop_jax.agents.fbe import FBE
 from bfsop_jax.agents.planners import VNSPlanner
-from bfsop_jax.agents.tour import TourStrategy, landmark_rewards
+from bfsop_jax.agents.tour import TourStrategy, landmark_rewards, pending_within
 from bfsop_jax.config import Preset
 from bfsop_jax.env.types import Observation, StepInfo
 from bfsop_jax.sop.types import Solution, SOPInstance
@@ -76,6 +76,17 @@ class BFSOPConfig:
     # with cover: SOP sets are landmark parts (a long footprint's thirds), so one tour can
     # visit a large landmark from several sides (False: one set per landmark)
     parts: bool = False
+    # > 0: tour only when a pending landmark lies within this many metres of the agent
+    # (straight line to its centre), after ``timer_m`` metres explored with landmarks
+    # pending, or when the budget or the landmark cap presses (a reactive trigger; the SOP
+    # still plans the whole tour from there); 0: whenever the pending set changes
+    trigger_m: float = 0.0
+    # True: only a newly detected landmark of interest makes the switcher look again; a
+    # tour's retirements and partial visits do not, so what a tour left pending (beyond
+    # its horizon, or a landmark seen in part) waits for the next tour instead of
+    # starting one at once. False: any change of the pending landmarks or their rewards
+    new_only: bool = False
+    timer_m: float = 40.0  # with trigger_m: metres explored with landmarks pending
 
 
 @struct.dataclass
@@ -87,6 +98,8 @@ class SwitchRule:
     considered: jax.Array
     explore_m: jax.Array  # float32 []: decayed metres explored
     explore_reward: jax.Array  # float32 []: decayed landmark reward discovered
+    pending_m: jax.Array  # float32 []: metres explored with landmarks pending since a tour
+    pending: jax.Array  # bool []: landmarks were pending at the last evaluation
 
 
 def greedy_estimate(
@@ -220,6 +233,8 @@ class BFSOP(TourStrategy):
             considered=jnp.zeros(obs.found.shape, jnp.float32),
             explore_m=jnp.zeros((), jnp.float32),
             explore_reward=jnp.zeros((), jnp.float32),
+            pending_m=jnp.zeros((), jnp.float32),
+            pending=jnp.zeros((), bool),
         )
 
     def wants_tour(self, rule, obs, pending, reward, has_frontier, touring, preset):
@@ -233,25 +248,36 @@ class BFSOP(TourStrategy):
         yield_rate = rule.explore_reward / jnp.maximum(rule.explore_m, cfg.yield_floor_m)
         yield_rate = np.float32(cfg.yield_weight) * yield_rate
         worth = est_r / jnp.maximum(est_c, 1e-3) > yield_rate
-        worth = worth | (remaining <= np.float32(cfg.budget_margin) * est_c)
-        worth = worth | (pending.sum() >= preset.n_loi)
+        presses = (remaining <= np.float32(cfg.budget_margin) * est_c) | (
+            pending.sum() >= preset.n_loi
+        )
         # While exploring: any change of the pending landmarks or their rewards. While
         # touring (re-planning), only a newly detected landmark: the tour's own visits
         # shrink the set as planned.
         new = jnp.any((reward > 0) & (rule.considered <= 0))
-        changed = jnp.where(touring, new, jnp.any(reward != rule.considered))
-        want = (est_r > 0) & worth & changed
+        changed = new if cfg.new_only else jnp.any(reward != rule.considered)
+        changed = jnp.where(touring, new, changed)
+        if cfg.trigger_m > 0:
+            near = pending_within(obs, pending, cfg.trigger_m)
+            timer = rule.pending_m >= np.float32(cfg.timer_m)
+            fire = jnp.where(touring, changed, near | timer | (presses & changed))
+        else:
+            fire = (worth | presses) & changed
+        want = (est_r > 0) & fire
         # An evaluation is not repeated until something changes (with nothing left to
         # explore, the tour strategy switches regardless); a tour's visits change it.
         keep = touring & ~(new & np.bool_(cfg.replan))
-        return want, rule.replace(considered=jnp.where(keep, rule.considered, reward))
+        considered = jnp.where(keep, rule.considered, reward)
+        return want, rule.replace(considered=considered, pending=jnp.any(pending))
 
     def rule_update(self, rule, before, after, info: StepInfo, exploring):
         cfg = self.config
         new = after.landmark & ~before.landmark
         units = jnp.round(landmark_rewards(after) * _REWARD_UNITS).astype(jnp.int32)
         found = jnp.sum(jnp.where(new & exploring, units, 0)).astype(jnp.float32)
+        pending_m = rule.pending_m + jnp.where(rule.pending, info.travelled, 0.0)
         return rule.replace(
+            pending_m=jnp.where(exploring, pending_m, 0.0),
             explore_m=jnp.where(
                 exploring, _decayed(cfg.yield_decay, rule.explore_m, info.travelled), rule.explore_m
             ),

@@ -16,7 +16,7 @@ import numpy as np
 
 from bfsop_jax.agents.fbe import FBE
 from bfsop_jax.agents.planners import nearest_neighbour_plan
-from bfsop_jax.agents.tour import TourStrategy
+from bfsop_jax.agents.tour import TourStrategy, pending_within
 from bfsop_jax.config import Preset
 from bfsop_jax.env.types import Observation, StepInfo
 from bfsop_jax.sop.types import Solution, SOPInstance
@@ -53,13 +53,7 @@ class TFLReactive(TourStrategy):
         return jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
     def wants_tour(self, rule, obs, pending, reward, has_frontier, touring, preset):
-        # Squared distances from whole 1/64 m coordinates: exact integer comparisons.
-        q = jnp.round(obs.object_xy * 64.0).astype(jnp.int32)
-        p = jnp.round(obs.pose[:2] * 64.0).astype(jnp.int32)
-        d = q - p
-        d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
-        r = int(round(self.config.radius_m * 64.0))
-        near = jnp.any(pending & (d2 <= r * r))
+        near = pending_within(obs, pending, self.config.radius_m)
         metres, _ = rule
         timer = metres >= np.float32(self.config.timer_m)
         return near | timer, (metres, jnp.any(pending))

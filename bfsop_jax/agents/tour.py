@@ -52,7 +52,14 @@ from bfsop_jax.sop.builder import (
 )
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 
-__all__ = ["SwitchMemory", "TourMemory", "TourStrategy", "landmark_rewards", "pending_landmarks"]
+__all__ = [
+    "SwitchMemory",
+    "TourMemory",
+    "TourStrategy",
+    "landmark_rewards",
+    "pending_landmarks",
+    "pending_within",
+]
 
 
 @struct.dataclass
@@ -102,6 +109,20 @@ def landmark_rewards(obs: Observation, covered: jax.Array | None = None) -> jax.
 def pending_landmarks(obs: Observation, retired: jax.Array) -> jax.Array:
     """bool [M]: detected landmarks of interest with a positive reward, not yet retired."""
     return obs.landmark & ~retired & (landmark_rewards(obs) > 0)
+
+
+def pending_within(obs: Observation, pending: jax.Array, radius_m: float) -> jax.Array:
+    """bool []: a pending landmark's centre lies within ``radius_m`` metres of the agent.
+
+    Straight-line distance, compared as exact integer squares of whole 1/64 m
+    coordinates (so batched and single calls agree). ``pending`` bool [M].
+    """
+    q = jnp.round(obs.object_xy * 64.0).astype(jnp.int32)
+    p = jnp.round(obs.pose[:2] * 64.0).astype(jnp.int32)
+    d = q - p
+    d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
+    r = int(round(radius_m * 64.0))
+    return jnp.any(pending & (d2 <= r * r))
 
 
 def _empty_plan(preset: Preset) -> tuple[SOPInstance, Solution, jax.Array, jax.Array]:
