@@ -76,6 +76,10 @@ class BFSOPConfig:
     # with cover: SOP sets are landmark parts (a long footprint's thirds), so one tour can
     # visit a large landmark from several sides (False: one set per landmark)
     parts: bool = False
+    # with cover: once this many targets have been verified (the category is plentiful in
+    # this house), a landmark seen in part is retired, not gone back to: many targets
+    # reward visiting many landmarks once more than covering a few; 0 = never
+    plentiful_after: int = 0
     # > 0: tour only when a pending landmark lies within this many metres of the agent
     # (straight line to its centre), after ``timer_m`` metres explored with landmarks
     # pending, or when the budget or the landmark cap presses (a reactive trigger; the SOP

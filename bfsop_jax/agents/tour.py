@@ -246,6 +246,12 @@ class TourStrategy:
         return bool(getattr(self.config, "complete", True))
 
     @property
+    def plentiful_after(self) -> int:
+        """With coverage: once this many targets are verified, a landmark seen in part is
+        retired (each landmark is visited once again); 0: never."""
+        return int(getattr(self.config, "plentiful_after", 0))
+
+    @property
     def covers(self) -> bool:
         """Whether a landmark stays pending until its coverage points are seen, rather than
         being retired at its first visit (the default)."""
@@ -314,7 +320,13 @@ class TourStrategy:
     ) -> tuple[Action, Decision, SwitchMemory]:
         tour = memory.tour
         if self.covers:
-            tour = _skip_retired(_fold_arrival(tour, obs, preset, self.completes))
+            tour = _fold_arrival(tour, obs, preset, self.completes)
+            if self.plentiful_after > 0:
+                # the category is plentiful here: breadth over depth, so a landmark seen
+                # (in part) on a visit is not gone back to
+                plentiful = obs.found.sum() >= self.plentiful_after
+                tour = tour.replace(retired=tour.retired | (plentiful & tour.covered.any(-1)))
+            tour = _skip_retired(tour)
         explore_action, has_frontier, explore_memory = self.explorer.explore(
             memory.explore, obs, preset
         )
