@@ -207,6 +207,12 @@ def test_instance_with_parts_splits_a_long_landmark():
     assert np.all(rewards <= float(whole.set_reward[1]) / 3 + 1e-6)
     with pytest.raises(ValueError, match="parts=True needs covered"):
         build_instance(*args[:10], None, True)
+    # split=False (traced): the long landmark is one set again, worth all its reward
+    unsplit, choice = build(*args, True, jnp.asarray(False))
+    index = np.asarray(choice.index)
+    assert index[0] == long[0] and (index >= 0).sum() == 1
+    assert np.asarray(choice.part)[0].all()
+    assert float(unsplit.set_reward[1]) == float(whole.set_reward[1])
 
 
 

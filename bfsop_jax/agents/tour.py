@@ -251,6 +251,11 @@ class TourStrategy:
         retired (each landmark is visited once again); 0: never."""
         return int(getattr(self.config, "plentiful_after", 0))
 
+    def _plentiful(self, obs: Observation) -> jax.Array:
+        """bool []: ``plentiful_after`` targets verified (never when it is 0)."""
+        k = self.plentiful_after
+        return (obs.found.sum() >= k) if k > 0 else jnp.zeros((), bool)
+
     @property
     def covers(self) -> bool:
         """Whether a landmark stays pending until its coverage points are seen, rather than
@@ -323,8 +328,8 @@ class TourStrategy:
             tour = _fold_arrival(tour, obs, preset, self.completes)
             if self.plentiful_after > 0:
                 # the category is plentiful here: breadth over depth, so a landmark seen
-                # (in part) on a visit is not gone back to
-                plentiful = obs.found.sum() >= self.plentiful_after
+                # (in part) on a visit is not gone back to, and sets are whole landmarks
+                plentiful = self._plentiful(obs)
                 tour = tour.replace(retired=tour.retired | (plentiful & tour.covered.any(-1)))
             tour = _skip_retired(tour)
         explore_action, has_frontier, explore_memory = self.explorer.explore(
@@ -348,7 +353,7 @@ class TourStrategy:
             inst, choice = build_instance(
                 obs.belief, obs.pose[:2], self.tour_budget(obs), pending, obs.object_category,
                 obs.object_xy, obs.object_half_extent, obs.prior, obs.category, preset,
-                covered if self.covers else None, parts,
+                covered if self.covers else None, parts, ~self._plentiful(obs),
             )  # fmt: skip
             part = choice.part if parts else jnp.zeros((preset.n_loi, COVER_POINTS), bool)
             return inst, self.plan(mask, inst), choice.index, choice.look, part

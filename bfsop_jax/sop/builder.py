@@ -365,6 +365,7 @@ def build_instance(
     preset: Preset,
     covered: jax.Array | None = None,
     parts: bool = False,
+    split: jax.Array | bool = True,
 ) -> tuple[SOPInstance, LandmarkChoice]:
     """The SOP instance of the current exploitation decision (jit/vmap-able).
 
@@ -383,6 +384,8 @@ def build_instance(
             point (:func:`covered_from`), and faces the centroid of those within reach.
         parts: with ``covered``, the sets are landmark parts (:func:`select_landmarks`):
             a set's viewpoints must see an unseen point of its part.
+        split: with ``parts``, bool [] (may be traced): False makes every footprint one
+            part, so each set is a whole landmark again.
 
     Returns ``(instance, landmarks)``: N = 1 + n_loi * n_viewpoints, K = 1 + n_loi;
     ``landmarks.look`` [N, 2] is the point each node's viewpoint faces.
@@ -394,7 +397,7 @@ def build_instance(
         raise ValueError("build_instance: parts=True needs covered (the coverage points seen)")
     choice = select_landmarks(
         candidates, object_category, object_xy, agent_xy, prior, category, preset, covered,
-        object_half_extent if parts else None,
+        jnp.where(split, object_half_extent, 0.0) if parts else None,
     )  # fmt: skip
     lm = jnp.maximum(choice.index, 0)
     has_lm = choice.index >= 0
