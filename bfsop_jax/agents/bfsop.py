@@ -49,7 +49,11 @@ _REWARD_UNITS = 65536.0  # yield bookkeeping in whole 2^-16 reward units
 
 @dataclasses.dataclass(frozen=True)
 class BFSOPConfig:
-    """Tunable numbers of the strategy switcher."""
+    """Tunable numbers of the strategy switcher.
+
+    The defaults were chosen on validation houses (docs/results.md): a 20 m horizon with
+    the best-rate prefix, landmark coverage with part sets, until two targets are found.
+    """
 
     detour: float = 1.3  # geodesic / straight-line ratio assumed by the cheap estimate
     yield_decay: float = 0.9  # per macro step of exploration (about 20 m of memory)
@@ -59,38 +63,38 @@ class BFSOPConfig:
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
     # a tour may use at most this many metres (the SOP budget; inf = all that remains):
     # shorter tours return to exploring sooner and are re-planned on a larger map
-    tour_horizon_m: float = 40.0
+    tour_horizon_m: float = 20.0
     # re-plan a tour being executed when a new landmark of interest is detected on the way
     # (the plan covers it and the rest of the old tour); False: tours run to their end
     replan: bool = False
     # execute only the prefix of the planned tour with the best reward per metre (then
     # re-plan on the grown map): a receding horizon; False: the whole tour
-    best_rate_prefix: bool = False
+    best_rate_prefix: bool = True
     # True: a landmark stays pending until every coverage point of its footprint has been
-    # seen (or a visit sees nothing new), each visit completing what it can; False (the
-    # default, chosen on validation houses): retired at its first visit
-    cover: bool = False
+    # seen (or a visit sees nothing new), each visit completing what it can; False:
+    # retired at its first visit
+    cover: bool = True
     # with cover: after a visit that leaves the landmark seen in part, go straight on to
     # the nearest viewpoint that sees more of it (False: leave it pending for later tours)
-    complete: bool = True
+    complete: bool = False
     # with cover: SOP sets are landmark parts (a long footprint's thirds), so one tour can
     # visit a large landmark from several sides (False: one set per landmark)
-    parts: bool = False
+    parts: bool = True
     # with cover: once this many targets have been verified (the category is plentiful in
     # this house), a landmark seen in part is retired, not gone back to: many targets
     # reward visiting many landmarks once more than covering a few; 0 = never
-    plentiful_after: int = 0
+    plentiful_after: int = 2
     # > 0: tour only when a pending landmark lies within this many metres of the agent
     # (straight line to its centre), after ``timer_m`` metres explored with landmarks
     # pending, or when the budget or the landmark cap presses (a reactive trigger; the SOP
     # still plans the whole tour from there); 0: whenever the pending set changes
     trigger_m: float = 0.0
+    timer_m: float = 40.0  # with trigger_m: metres explored with landmarks pending
     # True: only a newly detected landmark of interest makes the switcher look again; a
     # tour's retirements and partial visits do not, so what a tour left pending (beyond
     # its horizon, or a landmark seen in part) waits for the next tour instead of
     # starting one at once. False: any change of the pending landmarks or their rewards
     new_only: bool = False
-    timer_m: float = 40.0  # with trigger_m: metres explored with landmarks pending
 
 
 @struct.dataclass
