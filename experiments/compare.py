@@ -1,0 +1,132 @@
+"""Compare strategies across recorded Table I runs, on the episodes they share.
+
+    python -m experiments.compare runs/val-a:tfl_reactive runs/val-b:bfsop_st \\
+        [--label "TFL-Reactive" --label "BF-SOP"] [--png DIR/compare.png]
+
+Each argument is ``RUN_DIR:METHOD`` (a ``results.json`` written by
+``experiments.evaluate`` and a method in it); ``+`` joins runs of the same strategy on
+disjoint houses (``runs/a:bfsop_st+runs/b:bfsop_st``). The first is the reference.
+Printed: mean PPL and progress over the shared episodes, the paired difference to the
+reference with a 95% bootstrap interval over houses (whole houses resampled), the ratio,
+and the mean PPL by the episode's instance count (1-2, 3-5, 6-10, 11+). ``--png`` also
+draws the by-count means as grouped bars (atomic write).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bfsop_jax.metrics import paired_bootstrap_ci
+
+BINS = ((1, 2), (3, 5), (6, 10), (11, 10**9))
+
+
+def _bin_name(lo: int, hi: int) -> str:
+    return f"{lo}+" if hi >= 10**9 else f"{lo}-{hi}"
+
+
+def load(spec: str) -> dict[tuple[int, str], dict]:
+    """``RUN:METHOD[+RUN:METHOD...]`` -> {(house seed, category): episode record}."""
+    out: dict[tuple[int, str], dict] = {}
+    for part in spec.split("+"):
+        run, sep, method = part.rpartition(":")
+        if not sep or not run or not method:
+            raise ValueError(f"{part!r}: expected RUN_DIR:METHOD")
+        path = Path(run) / "results.json"
+        if not path.is_file():
+            raise ValueError(f"{path}: no results.json (run experiments.evaluate first)")
+        episodes = [e for e in json.loads(path.read_text())["episodes"] if e["method"] == method]
+        if not episodes:
+            raise ValueError(f"{path}: no episodes of method {method!r}")
+        for e in episodes:
+            out[(int(e["house_seed"]), str(e["category"]))] = e
+    return out
+
+
+def compare(specs: list[str], labels: list[str]) -> tuple[str, np.ndarray, list[str]]:
+    """The comparison table (Markdown), the by-count means [methods, bins] and the bins'
+    names (with their episode counts)."""
+    runs = [load(s) for s in specs]
+    keys = sorted(set.intersection(*(set(r) for r in runs)))
+    if not keys:
+        raise ValueError("the runs share no episode (house, category)")
+    houses = np.array([k[0] for k in keys])
+    total = np.array([runs[0][k]["total"] for k in keys])
+    ppl = np.array([[r[k]["ppl"] for k in keys] for r in runs])  # [methods, episodes]
+    progress = np.array([[r[k]["progress"] for k in keys] for r in runs])
+    in_bin = [(total >= lo) & (total <= hi) for lo, hi in BINS]
+    by_bin = np.array([[p[b].mean() if b.any() else np.nan for b in in_bin] for p in ppl])
+    names = [f"{_bin_name(*bin_)} ({int(b.sum())})" for bin_, b in zip(BINS, in_bin, strict=True)]
+    head = " | ".join(names)
+    lines = [
+        f"{len(keys)} shared episodes, {len(set(houses.tolist()))} houses; PPL by instance "
+        "count in the last columns (episodes).",
+        "",
+        f"| method | PPL | progress | - {labels[0]} [95% CI over houses] | ratio | {head} |",
+        "|---|---|---|---|---|" + "---|" * len(BINS),
+    ]
+    for i, label in enumerate(labels):
+        if i == 0:
+            diff = "reference"
+        else:
+            d, lo, hi = paired_bootstrap_ci(ppl[i], ppl[0], groups=houses)
+            diff = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
+        ratio = ppl[i].mean() / max(ppl[0].mean(), 1e-12)
+        cells = " | ".join(f"{v:.3f}" for v in by_bin[i])
+        lines.append(
+            f"| {label} | {ppl[i].mean():.3f} | {progress[i].mean():.3f} | {diff} | "
+            f"{ratio:.2f}x | {cells} |"
+        )
+    return "\n".join(lines), by_bin, names
+
+
+def plot(by_bin: np.ndarray, labels: list[str], counts: list[str], path: str) -> None:
+    """Grouped bars of mean PPL per instance-count bin, one bar per method."""
+    import matplotlib.pyplot as plt
+
+    from bfsop_jax.viz.style import method_colour, save
+
+    m, b = by_bin.shape
+    width = 0.8 / m
+    fig, ax = plt.subplots(figsize=(3.6 + 1.5 * b, 3.4))
+    for i in range(m):
+        x = np.arange(b) + (i - (m - 1) / 2) * width
+        ax.bar(x, by_bin[i], width, label=labels[i], color=method_colour(i))
+    ax.set_xticks(np.arange(b), counts)
+    ax.set_xlabel("instances of the target category in the house (episodes)")
+    ax.set_ylabel("mean PPL")
+    ax.legend(fontsize=8, frameon=False, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    save(fig, path)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", nargs="+", help="RUN_DIR:METHOD[+RUN_DIR:METHOD...]; first = reference")
+    ap.add_argument("--label", action="append", default=None, help="one per run, in order")
+    ap.add_argument("--png", default=None, help="also draw the by-count means here")
+    args = ap.parse_args(argv)
+    labels = args.label or args.runs
+    try:
+        if len(labels) != len(args.runs):
+            raise ValueError(f"{len(labels)} --label for {len(args.runs)} runs")
+        table, by_bin, names = compare(args.runs, labels)
+    except (ValueError, KeyError, json.JSONDecodeError) as err:
+        print(f"compare: {err}", file=sys.stderr)
+        return 2
+    print(table)
+    if args.png:
+        plot(by_bin, labels, names, args.png)
+        print(f"wrote {args.png}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,47 @@
+"""experiments.compare: strategies across recorded runs on their shared episodes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from experiments import compare
+
+
+def _run(tmp_path, name, method, ppl, houses=(1, 2, 3), totals=(1, 4, 12)):
+    episodes = [
+        {"method": method, "house_seed": h, "category": "Book", "total": t,
+         "ppl": p, "progress": p * 2}  # fmt: skip
+        for h, t, p in zip(houses, totals, ppl, strict=True)
+    ]
+    run = tmp_path / name
+    run.mkdir()
+    (run / "results.json").write_text(json.dumps({"episodes": episodes}))
+    return str(run)
+
+
+def test_compare_pairs_shared_episodes_and_bins_by_count(tmp_path, capsys):
+    a = _run(tmp_path, "a", "tfl_reactive", (0.1, 0.2, 0.3))
+    b = _run(tmp_path, "b", "bfsop_st", (0.2, 0.2, 0.5, 0.9), houses=(1, 2, 3, 4),
+             totals=(1, 4, 12, 7))  # fmt: skip
+    table, by_bin, names = compare.compare([f"{a}:tfl_reactive", f"{b}:bfsop_st"], ["T", "B"])
+    assert table.startswith("3 shared episodes, 3 houses")  # house 4 is not shared
+    assert names == ["1-2 (1)", "3-5 (1)", "6-10 (0)", "11+ (1)"]
+    assert by_bin[1, 0] == pytest.approx(0.2) and by_bin[1, 3] == pytest.approx(0.5)
+    row = table.splitlines()[-1]
+    assert row.startswith("| B | 0.300 | 0.600 | +0.100") and "1.50x" in row
+    png = tmp_path / "c.png"
+    assert compare.main([f"{a}:tfl_reactive", f"{b}:bfsop_st", "--png", str(png)]) == 0
+    assert png.stat().st_size > 0
+    capsys.readouterr()
+
+
+def test_compare_names_bad_input(tmp_path, capsys):
+    a = _run(tmp_path, "a", "tfl_reactive", (0.1, 0.2, 0.3))
+    assert compare.main([f"{a}:fbe"]) == 2
+    assert "no episodes of method 'fbe'" in capsys.readouterr().err
+    assert compare.main([f"{tmp_path}/missing:fbe"]) == 2
+    assert "no results.json" in capsys.readouterr().err
+    assert compare.main([a]) == 2
+    assert "expected RUN_DIR:METHOD" in capsys.readouterr().err
