@@ -14,10 +14,13 @@ to exploitation when
 * no frontier is reachable, or
 * the landmark cap ``preset.n_loi`` is full.
 
-A tour may use at most ``tour_horizon_m`` metres (the SOP budget). On switching, the
-SOP instance is built on the online map and the *planner* (the VNS
+A tour may use at most ``tour_horizon_m`` metres (the SOP budget, 20 m by default). On
+switching, the SOP instance is built on the online map and the *planner* (the VNS
 teacher through its host callback, or the Strategic Transformer) computes the tour,
-executed as :mod:`bfsop_jax.agents.tour` describes.
+executed as :mod:`bfsop_jax.agents.tour` describes: by default only its prefix with the
+best reward per metre (``best_rate_prefix``), with landmark coverage (``cover``) and the
+thirds of long landmarks as SOP sets (``parts``) until ``plentiful_after`` (2) targets
+are verified, then one visit per whole landmark.
 
 Exact arithmetic: the estimate's distances come from whole 1/64 m coordinates and the
 yield from whole 2^-16 reward units with an explicit rounding per operation, so the
