@@ -249,8 +249,9 @@ def test_plentiful_after_retires_landmarks_seen_in_part():
     """``plentiful_after=k``: once k targets are verified no landmark seen in part stays
     pending; without it some do on the same episodes (so the check can fail)."""
     cases = [(1000001, 4), (1000000, 7)]  # smoke episodes that verify 3 targets each
-    base = dict(cover=True, complete=False, tour_horizon_m=8.0)
-    plain = BFSOP(NearestNeighbourPlanner(), BFSOPConfig(**base))
+    base = dict(cover=True, complete=False, tour_horizon_m=8.0, parts=False,
+                best_rate_prefix=False)  # fmt: skip
+    plain = BFSOP(NearestNeighbourPlanner(), BFSOPConfig(plentiful_after=0, **base))
     late, _ = _partial_pending(plain, cases, 1)
     assert late > 0, "no landmark seen in part after a find: the test would be vacuous"
     strategy = BFSOP(NearestNeighbourPlanner(), BFSOPConfig(plentiful_after=1, **base))
