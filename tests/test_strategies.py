@@ -290,8 +290,9 @@ def test_bfsop_trigger_tours_only_near_a_landmark():
 def test_bfsop_new_only_tours_when_a_new_landmark_appears():
     """``BFSOPConfig(new_only=True)``: a tour starts (with a frontier left) only when a
     landmark of interest is pending that was not at the switcher's last look. With
-    coverage, landmarks seen in part stay pending; the default tours again on them (8 of
-    its 18 plans on these episodes break the rule)."""
+    coverage, landmarks seen in part stay pending; without ``new_only`` the switcher
+    tours again on them (with the settings below less the flag: 8 of 18 plans here
+    broke the rule when this test was written)."""
     states = _states((1000000, 1000001, 1000002))
     cfg = BFSOPConfig(new_only=True, cover=True, complete=False)
     strategy = BFSOP(NearestNeighbourPlanner(), cfg)
