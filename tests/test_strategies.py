@@ -294,7 +294,8 @@ def test_bfsop_new_only_tours_when_a_new_landmark_appears():
     tours again on them (with the settings below less the flag: 8 of 18 plans here
     broke the rule when this test was written)."""
     states = _states((1000000, 1000001, 1000002))
-    cfg = BFSOPConfig(new_only=True, cover=True, complete=False)
+    cfg = BFSOPConfig(new_only=True, cover=True, complete=False, parts=False,
+                      best_rate_prefix=False, plentiful_after=0, tour_horizon_m=40.0)  # fmt: skip
     strategy = BFSOP(NearestNeighbourPlanner(), cfg)
 
     def check(obs, memory, frontier):
