@@ -268,9 +268,10 @@ def _walk_planned(strategy, states, n: int, check) -> int:
 def test_bfsop_trigger_tours_only_near_a_landmark():
     """``BFSOPConfig(trigger_m=r)`` (timer and budget rule off): every tour starts with a
     pending landmark within ``r`` of the agent (or the landmark cap full, or no frontier),
-    and one does start; the eager default tours no later."""
+    and one does start. (Coverage off: the trigger does not depend on it.)"""
     states = _states((1000000, 1000001))
-    cfg = BFSOPConfig(trigger_m=2.5, timer_m=1e6, budget_margin=0.0)
+    cfg = BFSOPConfig(trigger_m=2.5, timer_m=1e6, budget_margin=0.0, cover=False,
+                      parts=False, best_rate_prefix=False, plentiful_after=0)  # fmt: skip
     strategy = BFSOP(NearestNeighbourPlanner(), cfg)
 
     def check(obs, memory, frontier):
@@ -281,10 +282,6 @@ def test_bfsop_trigger_tours_only_near_a_landmark():
         assert near or full or not frontier or bool(memory.tour.touring)
 
     assert _walk_planned(strategy, states, 2, check) >= 1, "no tour: the test would be vacuous"
-    _, eager = _batched(BFSOP_NN)(states)
-    _, reactive = _batched(strategy)(states)
-    first = lambda traj: [int(np.argmax(np.asarray(traj.planned)[b])) for b in range(2)]  # noqa: E731
-    assert all(e <= r for e, r in zip(first(eager), first(reactive), strict=True))
 
 
 def test_bfsop_new_only_tours_when_a_new_landmark_appears():
