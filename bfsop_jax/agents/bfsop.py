@@ -44,10 +44,7 @@ from bfsop_jax.config import Preset
 from bfsop_jax.env.types import Observation, StepInfo
 from bfsop_jax.sop.types import Solution, SOPInstance
 
-__all__ = [
-    "BFSOP", "BFSOPConfig", "SwitchRule", "best_rate_prefix", "detour_costs", "greedy_estimate",
-    "reach_lower_bound",
-]
+__all__ = ["BFSOP", "BFSOPConfig", "SwitchRule", "best_rate_prefix", "greedy_estimate"]
 
 _XY_UNITS = 64.0  # estimate coordinates in whole 1/64 m
 _REWARD_UNITS = 65536.0  # yield bookkeeping in whole 2^-16 reward units
@@ -101,23 +98,6 @@ class BFSOPConfig:
     # its horizon, or a landmark seen in part) waits for the next tour instead of
     # starting one at once. False: any change of the pending landmarks or their rewards
     new_only: bool = False
-    # True: the planner sees tour costs as detours from the way to the explorer's next
-    # frontier, c'(i, j) = c(i, j) + h(j) - h(i) with h the straight-line distance to it,
-    # so an open tour costs its length plus what is left to the frontier from its end,
-    # minus the straight line from the start: landmarks on the way are cheap, those behind
-    # cost the way there and back. False: plain tour lengths from the agent
-    frontier_detour: bool = False
-    # True: while a frontier is left, only landmarks a tour could reach within its budget
-    # (a lower bound from the straight line to the landmark's viewpoint ring; a detour's
-    # with ``frontier_detour``) enter the instance and the estimate, so the top ``n_loi``
-    # by reward are picked among reachable ones. False: the top ``n_loi`` of all pending
-    within_horizon: bool = False
-    # > 0: a harvest rule instead of looking only when the pending set changes: every
-    # macro step of exploration, tour when the estimated plan's reward per metre is at
-    # least this many times the agent's own find rate so far (targets verified per metre
-    # travelled): the marginal-value rule of foraging. Early, or while the target is
-    # scarce, any rewarding plan qualifies; once finds come fast, only cheap tours do
-    harvest_weight: float = 0.0
 
 
 @struct.dataclass
@@ -230,55 +210,6 @@ def best_rate_prefix(instance: SOPInstance, nodes: jax.Array) -> jax.Array:
     return best
 
 
-def reach_lower_bound(
-    agent_xy: jax.Array,
-    centre: jax.Array,
-    half_extent: jax.Array,
-    preset: Preset,
-    goal_xy: jax.Array | None = None,
-) -> jax.Array:
-    """float32 [M]: metres a tour needs at least to reach a viewpoint of each landmark.
-
-    ``centre``, ``half_extent`` [M, 2]: footprints; a landmark's viewpoints lie within
-    ``r = |half_extent| + preset.viewpoint_max_m`` of its centre and a geodesic is never
-    shorter than the straight line, so ``max(0, |agent - centre| - r)`` is a lower bound.
-    With ``goal_xy`` [2], the bound on the detour instead (costs of :func:`detour_costs`):
-    ``max(0, |agent - centre| + |centre - goal| - |agent - goal| - 2 r)``.
-    """
-    r = _length(half_extent) + np.float32(preset.viewpoint_max_m)
-    to_lm = _length(centre - agent_xy)
-    if goal_xy is None:
-        return jnp.maximum(to_lm - r, 0.0)
-    via = to_lm + _length(centre - goal_xy) - _length(goal_xy - agent_xy)
-    return jnp.maximum(via - (r + r), 0.0)
-
-
-def _length(v: jax.Array) -> jax.Array:
-    """float32 [...]: Euclidean length of ``v`` [..., 2] (metres) from whole 1/64 m
-    components (exact integer squares: batched and single calls agree bit for bit)."""
-    q = jnp.round(v * _XY_UNITS).astype(jnp.int32)
-    d2 = (q[..., 0] * q[..., 0] + q[..., 1] * q[..., 1]).astype(jnp.float32)
-    return jnp.sqrt(d2) * np.float32(1.0 / _XY_UNITS)
-
-
-def detour_costs(instance: SOPInstance, goal_xy: jax.Array, active: jax.Array) -> SOPInstance:
-    """The instance with costs measured as detours from the way to ``goal_xy`` [2] (metres).
-
-    ``c'(i, j) = c(i, j) + h(j) - h(i)`` with ``h`` the straight-line distance from a
-    node's coordinates to the goal (whole 1/64 m coordinates, exact integer squares, so
-    batched and single calls agree). Along any path the ``h`` terms telescope: an open
-    path from the start costs its length ``+ h(last) - h(start)``, the metres it adds to
-    the walk to the goal when the goal is straight-line reachable from its end. Because
-    ``c`` is a geodesic (never shorter than the straight line), ``c' >= 0`` up to
-    rounding (clipped at 0); unreachable (inf) entries stay inf. ``active`` bool []: False
-    returns the costs unchanged (no frontier to head for).
-    """
-    h = _length(instance.coords - goal_xy[None])  # [N] metres
-    shifted = jnp.maximum(instance.cost + (h[None, :] - h[:, None]), 0.0)
-    cost = jnp.where(active & jnp.isfinite(instance.cost), shifted, instance.cost)
-    return instance.replace(cost=cost)
-
-
 def _decayed(decay: float, value: jax.Array, added: jax.Array) -> jax.Array:
     """``decay * value + added`` with both roundings explicit (never a fused multiply-add)."""
     return jax.lax.optimization_barrier(np.float32(decay) * value) + added
@@ -307,20 +238,6 @@ class BFSOP(TourStrategy):
 
     def tour_budget(self, obs: Observation) -> jax.Array:
         return jnp.minimum(obs.remaining, np.float32(self.config.tour_horizon_m))
-
-    def within_reach(self, obs: Observation, frontier_xy: jax.Array, preset: Preset) -> jax.Array:
-        if not self.config.within_horizon:
-            return super().within_reach(obs, frontier_xy, preset)
-        goal = frontier_xy if self.config.frontier_detour else None
-        low = reach_lower_bound(obs.pose[:2], obs.object_xy, obs.object_half_extent, preset, goal)
-        return low <= self.tour_budget(obs)
-
-    def tour_instance(
-        self, instance: SOPInstance, frontier_xy: jax.Array, has_frontier: jax.Array
-    ) -> SOPInstance:
-        if not self.config.frontier_detour:
-            return instance
-        return detour_costs(instance, frontier_xy, has_frontier)
 
     def rule_init(self, obs: Observation, preset: Preset) -> SwitchRule:
         return SwitchRule(
@@ -351,13 +268,7 @@ class BFSOP(TourStrategy):
         new = jnp.any((reward > 0) & (rule.considered <= 0))
         changed = new if cfg.new_only else jnp.any(reward != rule.considered)
         changed = jnp.where(touring, new, changed)
-        if cfg.harvest_weight > 0:
-            # est_r / est_c >= w * found / path, compared as products (no division)
-            found = obs.found.sum().astype(jnp.float32)
-            offer = est_r * jnp.maximum(obs.path_length, np.float32(cfg.yield_floor_m))
-            bar = np.float32(cfg.harvest_weight) * found * jnp.maximum(est_c, 1e-3)
-            fire = jnp.where(touring, changed, (offer >= bar) | (presses & changed))
-        elif cfg.trigger_m > 0:
+        if cfg.trigger_m > 0:
             near = pending_within(obs, pending, cfg.trigger_m)
             timer = rule.pending_m >= np.float32(cfg.timer_m)
             fire = jnp.where(touring, changed, near | timer | (presses & changed))

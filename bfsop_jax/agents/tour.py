@@ -292,19 +292,6 @@ class TourStrategy:
         """Metres a tour may use (the SOP budget): by default all that remains."""
         return obs.remaining
 
-    def within_reach(self, obs: Observation, frontier_xy: jax.Array, preset: Preset) -> jax.Array:
-        """bool [M]: the landmarks a tour could reach within :meth:`tour_budget` (only those
-        enter its SOP instance and the switch rule's rewards while a frontier is left);
-        by default all of them."""
-        return jnp.ones(obs.found.shape, bool)
-
-    def tour_instance(
-        self, instance: SOPInstance, frontier_xy: jax.Array, has_frontier: jax.Array
-    ) -> SOPInstance:
-        """The instance the planner sees, given the explorer's goal ``frontier_xy`` [2]
-        (metres; meaningful where ``has_frontier``): by default the instance as posed."""
-        return instance
-
     # -- the strategy ------------------------------------------------------------------
     def init(self, obs: Observation, preset: Preset) -> SwitchMemory:
         t, m = preset.n_loi, obs.found.shape[-1]
@@ -349,12 +336,8 @@ class TourStrategy:
             memory.explore, obs, preset
         )
         pending = pending_landmarks(obs, tour.retired)
-        # the landmarks a tour may plan for: with nothing left to explore, all of them
-        plannable = pending & (
-            self.within_reach(obs, explore_action.goal_xy, preset) | ~has_frontier
-        )
         reward = jnp.where(
-            plannable, landmark_rewards(obs, tour.covered if self.covers else None), 0.0
+            pending, landmark_rewards(obs, tour.covered if self.covers else None), 0.0
         )
         want, rule = self.wants_tour(
             memory.rule, obs, pending, reward, has_frontier, tour.touring, preset
@@ -366,13 +349,12 @@ class TourStrategy:
 
         parts = self.covers and self.parts
 
-        def posed(mask, obs, pending, covered, frontier_xy, has_frontier):
+        def posed(mask, obs, pending, covered):
             inst, choice = build_instance(
                 obs.belief, obs.pose[:2], self.tour_budget(obs), pending, obs.object_category,
                 obs.object_xy, obs.object_half_extent, obs.prior, obs.category, preset,
                 covered if self.covers else None, parts, ~self._plentiful(obs),
             )  # fmt: skip
-            inst = self.tour_instance(inst, frontier_xy, has_frontier)
             part = choice.part if parts else jnp.zeros((preset.n_loi, COVER_POINTS), bool)
             return inst, self.plan(mask, inst), choice.index, choice.look, part
 
@@ -380,9 +362,8 @@ class TourStrategy:
             return *_empty_plan(preset), jnp.zeros((preset.n_loi, COVER_POINTS), bool)
 
         inst, plan, loi_index, node_look, set_part = sparse_cond(
-            switch, posed, unposed, obs, plannable, tour.covered, explore_action.goal_xy,
-            has_frontier,
-        )  # fmt: skip
+            switch, posed, unposed, obs, pending, tour.covered
+        )
 
         # Tour slots from the plan: the start node first, then viewpoints.
         nodes = plan.nodes[1 : preset.n_loi + 1]
