@@ -8,8 +8,10 @@ Each argument is ``RUN_DIR:METHOD`` (a ``results.json`` written by
 disjoint houses (``runs/a:bfsop_st+runs/b:bfsop_st``). The first is the reference.
 Printed: mean PPL and progress over the shared episodes, the paired difference to the
 reference with a 95% bootstrap interval over houses (whole houses resampled), the ratio,
-and the mean PPL by the episode's instance count (1-2, 3-5, 6-10, 11+). ``--png`` also
-draws the by-count means as grouped bars (atomic write).
+and the mean PPL by the episode's instance count (1-2, 3-5, 6-10, 11+); for runs that
+record them, where the unverified targets are (on a receptacle the agent detected, on one
+it never detected, on the floor) and the share of metres toured. ``--png`` also draws the
+by-count means as grouped bars (atomic write).
 """
 
 from __future__ import annotations
@@ -82,7 +84,38 @@ def compare(specs: list[str], labels: list[str]) -> tuple[str, np.ndarray, list[
             f"| {label} | {ppl[i].mean():.3f} | {progress[i].mean():.3f} | {diff} | "
             f"{ratio:.2f}x | {cells} |"
         )
+    lines += _accounting(runs, keys, labels)
     return "\n".join(lines), by_bin, names
+
+
+ACCOUNT = ("found", "missed_seen", "missed_unseen", "missed_floor")
+
+
+def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
+    """Where the targets are at the end, per episode (runs recorded since the fields
+    exist; older runs are left out): verified, unverified on a receptacle the agent
+    detected, on one it never detected, on the floor; and the share of metres toured."""
+    rows = []
+    for label, run in zip(labels, runs, strict=True):
+        eps = [run[k] for k in keys]
+        if not all(f in eps[0] for f in (*ACCOUNT, "touring_share")):
+            continue
+        cells = " | ".join(f"{np.mean([e[f] for e in eps]):.2f}" for f in ACCOUNT)
+        share = np.mean([e["touring_share"] for e in eps])
+        rows.append(f"| {label} | {cells} | {share:.2f} |")
+    if not rows:
+        return []
+    return [
+        "",
+        "Targets per episode at the end: verified; unverified on a receptacle the agent "
+        "detected, on one it never detected, on the floor; and the share of metres spent "
+        "touring.",
+        "",
+        "| method | found | on a detected receptacle | on an undetected one | on the floor "
+        "| touring share |",
+        "|---|---|---|---|---|---|",
+        *rows,
+    ]
 
 
 def plot(by_bin: np.ndarray, labels: list[str], counts: list[str], path: str) -> None:

@@ -62,8 +62,12 @@ def test_table1_outputs(table1):
         assert r["ppl"] <= r["progress"] + 1e-9 and r["ppl_end"] <= r["ppl"] + 1e-9
         assert 0.0 <= r["revisit"] <= 1.0
         assert (r["l_opt"] > 0) == (r["found"] > 0) or r["path_length"] == 0.0
+        missed = r["missed_seen"] + r["missed_unseen"] + r["missed_floor"]
+        assert missed == r["total"] - r["found"] and min(
+            r["missed_seen"], r["missed_unseen"], r["missed_floor"]) >= 0  # fmt: skip
+        assert 0.0 <= r["touring_share"] <= 1.0
         if r["method"] == "fbe":
-            assert r["switches"] == 0 and r["planner_calls"] == 0
+            assert r["switches"] == 0 and r["planner_calls"] == 0 and r["touring_share"] == 0
     text = (out / "table1.md").read_text()
     assert "BF-SOP (Transformer) - " in text and "[95% CI]" in text
     _, hlo, hhi = nav.paired(saved["episodes"], "bfsop_st", "fbe", by_house=True)  # 2+ houses

@@ -349,6 +349,8 @@ def _episode_records(
     records, paths = [], {}
     for i, ep in enumerate(episodes):
         found_mask = np.asarray(final.found[i])[targets[i]]
+        missed = _missed_targets(houses[ep.house], targets[i][~found_mask],
+                                 np.asarray(final.receptacles_seen[i]))  # fmt: skip
         sel = np.concatenate([[0], 1 + np.flatnonzero(found_mask)])
         l_opt = metrics.optimal_visit_length(dist[i][np.ix_(sel, sel)]) if len(sel) > 1 else 0.0
         found, total = int(found_mask.sum()), len(targets[i])
@@ -374,15 +376,38 @@ def _episode_records(
             "touring_steps": int(np.asarray(traj.touring[i]).sum()),
             "macro_steps": int(active.sum()),
             "revisit": _revisit(start_xy[i], traj, i, preset),
+            **missed,
         })  # fmt: skip
         moved = np.asarray(traj.moved[i])
         xy = np.asarray(traj.poses[i, ..., :2])[moved]
         tour = np.broadcast_to(np.asarray(traj.touring[i])[:, None], moved.shape)[moved]
+        legs = np.diff(np.concatenate([start_xy[i][None], xy]), axis=0)
+        metres = np.sqrt(np.sum(legs * legs, axis=-1))
+        records[-1]["touring_share"] = float(metres[tour].sum() / max(metres.sum(), 1e-9))
         paths[f"{i}_xy"] = np.concatenate([start_xy[i][None], xy]).astype(np.float32)
         paths[f"{i}_touring"] = np.concatenate([[False], tour])
         obj_xy = np.asarray(houses[ep.house].object_xy)
         paths[f"{i}_found"] = obj_xy[targets[i][found_mask]].astype(np.float32)
     return records, paths
+
+
+def _missed_targets(house: House, missed: np.ndarray, receptacles_seen: np.ndarray) -> dict:
+    """Where an episode's unverified targets are (metrics only: reads the true house).
+
+    ``missed`` int32 [U]: object slots of the targets not verified; ``receptacles_seen``
+    bool [M]: the receptacles the agent detected. Returns the counts of those standing on
+    a receptacle the agent detected (``missed_seen``: a visit, or one more, could have
+    verified them), on one it never detected (``missed_unseen``: exploration did not get
+    there), and on the floor (``missed_floor``).
+    """
+    parent = np.asarray(house.object_parent)[missed]
+    on_floor = parent < 0
+    seen = ~on_floor & np.asarray(receptacles_seen)[np.maximum(parent, 0)]
+    return {
+        "missed_seen": int(seen.sum()),
+        "missed_unseen": int((~on_floor & ~seen).sum()),
+        "missed_floor": int(on_floor.sum()),
+    }
 
 
 # -- the evaluation ------------------------------------------------------------------------
