@@ -94,26 +94,28 @@ ACCOUNT = ("found", "missed_seen", "missed_unseen", "missed_floor")
 def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
     """Where the targets are at the end, per episode (runs recorded since the fields
     exist; older runs are left out): verified, unverified on a receptacle the agent
-    detected, on one it never detected, on the floor; and the share of metres toured."""
+    detected, on one it never detected, on the floor; the share of metres toured and of
+    the finds made while touring."""
     rows = []
     for label, run in zip(labels, runs, strict=True):
         eps = [run[k] for k in keys]
-        if not all(f in eps[0] for f in (*ACCOUNT, "touring_share")):
+        if not all(f in eps[0] for f in (*ACCOUNT, "touring_share", "found_touring")):
             continue
         cells = " | ".join(f"{np.mean([e[f] for e in eps]):.2f}" for f in ACCOUNT)
         share = np.mean([e["touring_share"] for e in eps])
-        rows.append(f"| {label} | {cells} | {share:.2f} |")
+        toured = sum(e["found_touring"] for e in eps) / max(sum(e["found"] for e in eps), 1)
+        rows.append(f"| {label} | {cells} | {share:.2f} | {toured:.2f} |")
     if not rows:
         return []
     return [
         "",
         "Targets per episode at the end: verified; unverified on a receptacle the agent "
-        "detected, on one it never detected, on the floor; and the share of metres spent "
-        "touring.",
+        "detected, on one it never detected, on the floor; the share of metres spent "
+        "touring, and of the finds made while touring.",
         "",
         "| method | found | on a detected receptacle | on an undetected one | on the floor "
-        "| touring share |",
-        "|---|---|---|---|---|---|",
+        "| touring share | finds while touring |",
+        "|---|---|---|---|---|---|---|",
         *rows,
     ]
 

@@ -46,11 +46,11 @@ def test_compare_accounts_for_the_unverified_targets(tmp_path):
                                         strict=True):  # fmt: skip
         found = e["total"] - seen - unseen
         e.update(found=found, missed_seen=seen, missed_unseen=unseen, missed_floor=0,
-                 touring_share=share)  # fmt: skip
+                 touring_share=share, found_touring=found // 2)  # fmt: skip
     path.write_text(json.dumps(saved))
     table, _, _ = compare.compare([f"{a}:tfl_reactive", f"{b}:bfsop_st"], ["T", "B"])
     # only the run that records the fields gets a row: means over the three episodes
-    assert "| B | 2.67 | 1.00 | 2.00 | 0.00 | 0.30 |" in table  # found 0, 2, 6
+    assert "| B | 2.67 | 1.00 | 2.00 | 0.00 | 0.30 | 0.50 |" in table  # found 0, 2, 6
     assert "| T | " not in table.split("Targets per episode")[1]
 
 

@@ -65,9 +65,10 @@ def test_table1_outputs(table1):
         missed = r["missed_seen"] + r["missed_unseen"] + r["missed_floor"]
         assert missed == r["total"] - r["found"] and min(
             r["missed_seen"], r["missed_unseen"], r["missed_floor"]) >= 0  # fmt: skip
-        assert 0.0 <= r["touring_share"] <= 1.0
+        assert 0.0 <= r["touring_share"] <= 1.0 and 0 <= r["found_touring"] <= r["found"]
         if r["method"] == "fbe":
             assert r["switches"] == 0 and r["planner_calls"] == 0 and r["touring_share"] == 0
+            assert r["found_touring"] == 0
     text = (out / "table1.md").read_text()
     assert "BF-SOP (Transformer) - " in text and "[95% CI]" in text
     _, hlo, hhi = nav.paired(saved["episodes"], "bfsop_st", "fbe", by_house=True)  # 2+ houses

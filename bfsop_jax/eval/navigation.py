@@ -384,6 +384,8 @@ def _episode_records(
         legs = np.diff(np.concatenate([start_xy[i][None], xy]), axis=0)
         metres = np.sqrt(np.sum(legs * legs, axis=-1))
         records[-1]["touring_share"] = float(metres[tour].sum() / max(metres.sum(), 1e-9))
+        gained = np.diff(np.asarray(traj.found_count[i]), prepend=initial_found)
+        records[-1]["found_touring"] = int(gained[np.asarray(traj.touring[i]) & active].sum())
         paths[f"{i}_xy"] = np.concatenate([start_xy[i][None], xy]).astype(np.float32)
         paths[f"{i}_touring"] = np.concatenate([[False], tour])
         obj_xy = np.asarray(houses[ep.house].object_xy)
