@@ -11,7 +11,8 @@ reference with a 95% bootstrap interval over houses (whole houses resampled), th
 and the mean PPL by the episode's instance count (1-2, 3-5, 6-10, 11+); for runs that
 record them, where the unverified targets are (on a receptacle the agent detected, on one
 it never detected, on the floor) and the share of metres toured. ``--png`` also draws the
-by-count means as grouped bars (atomic write).
+by-count means as grouped bars, and beside it (``<name>_targets.png``) where the targets
+are as stacked bars, for runs that record it (atomic writes).
 """
 
 from __future__ import annotations
@@ -88,7 +89,50 @@ def compare(specs: list[str], labels: list[str]) -> tuple[str, np.ndarray, list[
     return "\n".join(lines), by_bin, names
 
 
+def compare_targets(specs: list[str], labels: list[str]) -> dict[str, np.ndarray]:
+    """:func:`account_means` over the episodes the runs share."""
+    runs = [load(s) for s in specs]
+    keys = sorted(set.intersection(*(set(r) for r in runs)))
+    return account_means(runs, keys, labels)
+
+
 ACCOUNT = ("found", "missed_seen", "missed_unseen", "missed_floor")
+
+
+def account_means(runs: list[dict], keys: list, labels: list[str]) -> dict[str, np.ndarray]:
+    """{label: [found, missed_seen, missed_unseen, missed_floor]} per-episode means, for
+    the runs that record them."""
+    out = {}
+    for label, run in zip(labels, runs, strict=True):
+        eps = [run[k] for k in keys]
+        if all(f in eps[0] for f in ACCOUNT):
+            out[label] = np.array([np.mean([e[f] for e in eps]) for f in ACCOUNT])
+    return out
+
+
+def plot_targets(means: dict[str, np.ndarray], path: str) -> None:
+    """Stacked bars: where each method's targets are at the end of an episode."""
+    import matplotlib.pyplot as plt
+
+    from bfsop_jax.viz.style import save
+
+    parts = ("verified", "on a detected receptacle", "on a receptacle never detected",
+             "on the floor")  # fmt: skip
+    colours = ("#2e7d32", "#f9a825", "#c62828", "#9e9e9e")
+    labels = list(means)
+    fig, ax = plt.subplots(figsize=(3.2 + 1.6 * len(labels), 3.4))
+    bottom = np.zeros(len(labels))
+    for j, (name, colour) in enumerate(zip(parts, colours, strict=True)):
+        v = np.array([means[m][j] for m in labels])
+        ax.bar(labels, v, 0.6, bottom=bottom, label=name, color=colour)
+        bottom += v
+    ax.set_ylabel("targets per episode (mean)")
+    ax.tick_params(axis="x", labelsize=8)
+    ax.legend(fontsize=8, frameon=False, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    save(fig, path)
+    plt.close(fig)
 
 
 def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
@@ -160,6 +204,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.png:
         plot(by_bin, labels, names, args.png)
         print(f"wrote {args.png}")
+        means = compare_targets(args.runs, labels)
+        if means:
+            where = str(Path(args.png).with_name(Path(args.png).stem + "_targets.png"))
+            plot_targets(means, where)
+            print(f"wrote {where}")
     return 0
 
 

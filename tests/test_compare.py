@@ -52,6 +52,11 @@ def test_compare_accounts_for_the_unverified_targets(tmp_path):
     # only the run that records the fields gets a row: means over the three episodes
     assert "| B | 2.67 | 1.00 | 2.00 | 0.00 | 0.30 | 0.50 |" in table  # found 0, 2, 6
     assert "| T | " not in table.split("Targets per episode")[1]
+    png = tmp_path / "c.png"
+    assert compare.main([f"{a}:tfl_reactive", f"{b}:bfsop_st", "--png", str(png)]) == 0
+    assert png.stat().st_size > 0 and (tmp_path / "c_targets.png").stat().st_size > 0
+    means = compare.compare_targets([f"{a}:tfl_reactive", f"{b}:bfsop_st"], ["T", "B"])
+    assert list(means) == ["B"] and means["B"][0] == pytest.approx(8 / 3)
 
 
 def test_compare_names_bad_input(tmp_path, capsys):
