@@ -98,12 +98,6 @@ class BFSOPConfig:
     # its horizon, or a landmark seen in part) waits for the next tour instead of
     # starting one at once. False: any change of the pending landmarks or their rewards
     new_only: bool = False
-    # > 0, with plentiful_after: once the category has proved plentiful, tour only when a
-    # pending landmark lies within this many metres (or after ``timer_m`` metres explored
-    # with landmarks pending, or when the budget or the landmark cap presses): with many
-    # targets about, exploring finds the landmarks and nearby ones are harvested on the
-    # way (TFL-Reactive's trigger, with the SOP still planning the tour). 0: no change
-    plentiful_trigger_m: float = 0.0
 
 
 @struct.dataclass
@@ -280,11 +274,6 @@ class BFSOP(TourStrategy):
             fire = jnp.where(touring, changed, near | timer | (presses & changed))
         else:
             fire = (worth | presses) & changed
-        if cfg.plentiful_trigger_m > 0 and self.plentiful_after > 0:
-            near = pending_within(obs, pending, cfg.plentiful_trigger_m)
-            timer = rule.pending_m >= np.float32(cfg.timer_m)
-            lazy = jnp.where(touring, changed, near | timer | (presses & changed))
-            fire = jnp.where(self._plentiful(obs), lazy, fire)
         want = (est_r > 0) & fire
         # An evaluation is not repeated until something changes (with nothing left to
         # explore, the tour strategy switches regardless); a tour's visits change it.
