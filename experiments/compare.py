@@ -51,13 +51,25 @@ def load(spec: str) -> dict[tuple[int, str], dict]:
     return out
 
 
-def compare(specs: list[str], labels: list[str]) -> tuple[str, np.ndarray, list[str]]:
-    """The comparison table (Markdown), the by-count means [methods, bins] and the bins'
-    names (with their episode counts)."""
+def shared(specs: list[str]) -> tuple[list[dict], list[tuple[int, str]]]:
+    """The runs of ``specs`` (loaded once) and the episodes they all hold, sorted."""
     runs = [load(s) for s in specs]
     keys = sorted(set.intersection(*(set(r) for r in runs)))
     if not keys:
         raise ValueError("the runs share no episode (house, category)")
+    return runs, keys
+
+
+def compare(specs: list[str], labels: list[str]) -> tuple[str, np.ndarray, list[str]]:
+    """The comparison table (Markdown), the by-count means [methods, bins] and the bins'
+    names (with their episode counts)."""
+    return table(*shared(specs), labels)
+
+
+def table(
+    runs: list[dict], keys: list[tuple[int, str]], labels: list[str]
+) -> tuple[str, np.ndarray, list[str]]:
+    """:func:`compare` on runs already loaded by :func:`shared`."""
     houses = np.array([k[0] for k in keys])
     total = np.array([runs[0][k]["total"] for k in keys])
     ppl = np.array([[r[k]["ppl"] for k in keys] for r in runs])  # [methods, episodes]
@@ -91,9 +103,7 @@ def compare(specs: list[str], labels: list[str]) -> tuple[str, np.ndarray, list[
 
 def compare_targets(specs: list[str], labels: list[str]) -> dict[str, np.ndarray]:
     """:func:`account_means` over the episodes the runs share."""
-    runs = [load(s) for s in specs]
-    keys = sorted(set.intersection(*(set(r) for r in runs)))
-    return account_means(runs, keys, labels)
+    return account_means(*shared(specs), labels)
 
 
 ACCOUNT = ("found", "missed_seen", "missed_unseen", "missed_floor")
@@ -141,11 +151,12 @@ def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
     detected, on one it never detected, on the floor; the share of metres toured and of
     the finds made while touring."""
     rows = []
+    means = account_means(runs, keys, labels)
     for label, run in zip(labels, runs, strict=True):
         eps = [run[k] for k in keys]
-        if not all(f in eps[0] for f in (*ACCOUNT, "touring_share", "found_touring")):
+        if label not in means or not all(f in eps[0] for f in ("touring_share", "found_touring")):
             continue
-        cells = " | ".join(f"{np.mean([e[f] for e in eps]):.2f}" for f in ACCOUNT)
+        cells = " | ".join(f"{v:.2f}" for v in means[label])
         share = np.mean([e["touring_share"] for e in eps])
         toured = sum(e["found_touring"] for e in eps) / max(sum(e["found"] for e in eps), 1)
         rows.append(f"| {label} | {cells} | {share:.2f} | {toured:.2f} |")
@@ -196,15 +207,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if len(labels) != len(args.runs):
             raise ValueError(f"{len(labels)} --label for {len(args.runs)} runs")
-        table, by_bin, names = compare(args.runs, labels)
+        runs, keys = shared(args.runs)
+        text, by_bin, names = table(runs, keys, labels)
     except (ValueError, KeyError, json.JSONDecodeError) as err:
         print(f"compare: {err}", file=sys.stderr)
         return 2
-    print(table)
+    print(text)
     if args.png:
         plot(by_bin, labels, names, args.png)
         print(f"wrote {args.png}")
-        means = compare_targets(args.runs, labels)
+        means = account_means(runs, keys, labels)
         if means:
             where = str(Path(args.png).with_name(Path(args.png).stem + "_targets.png"))
             plot_targets(means, where)

@@ -357,6 +357,14 @@ def _episode_records(
         initial_found = int(np.asarray(initial.found[i]).sum())
         l_last, l_end = _last_find_length(initial_found, traj, i)
         active = np.asarray(traj.active[i])
+        touring = np.asarray(traj.touring[i])  # [S] mode of each macro step
+        moved = np.asarray(traj.moved[i])
+        xy = np.asarray(traj.poses[i, ..., :2])[moved]
+        tour = np.broadcast_to(touring[:, None], moved.shape)[moved]
+        walked = np.concatenate([start_xy[i][None], xy])  # [P + 1, 2] start, then poses
+        legs = np.diff(walked, axis=0)
+        metres = np.sqrt(np.sum(legs * legs, axis=-1))
+        gained = np.diff(np.asarray(traj.found_count[i]), prepend=initial_found)
         records.append({
             "method": method,
             "house_seed": int(ep.house),
@@ -373,20 +381,14 @@ def _episode_records(
             "ppl_end": float(metrics.ppl(found, total, l_end, l_opt)),
             "switches": int(np.asarray(traj.switched[i]).sum()),
             "planner_calls": int(np.asarray(traj.planned[i]).sum()),
-            "touring_steps": int(np.asarray(traj.touring[i]).sum()),
+            "touring_steps": int(touring.sum()),
             "macro_steps": int(active.sum()),
             "revisit": _revisit(start_xy[i], traj, i, preset),
             **missed,
+            "touring_share": float(metres[tour].sum() / max(metres.sum(), 1e-9)),
+            "found_touring": int(gained[touring & active].sum()),
         })  # fmt: skip
-        moved = np.asarray(traj.moved[i])
-        xy = np.asarray(traj.poses[i, ..., :2])[moved]
-        tour = np.broadcast_to(np.asarray(traj.touring[i])[:, None], moved.shape)[moved]
-        legs = np.diff(np.concatenate([start_xy[i][None], xy]), axis=0)
-        metres = np.sqrt(np.sum(legs * legs, axis=-1))
-        records[-1]["touring_share"] = float(metres[tour].sum() / max(metres.sum(), 1e-9))
-        gained = np.diff(np.asarray(traj.found_count[i]), prepend=initial_found)
-        records[-1]["found_touring"] = int(gained[np.asarray(traj.touring[i]) & active].sum())
-        paths[f"{i}_xy"] = np.concatenate([start_xy[i][None], xy]).astype(np.float32)
+        paths[f"{i}_xy"] = walked.astype(np.float32)
         paths[f"{i}_touring"] = np.concatenate([[False], tour])
         obj_xy = np.asarray(houses[ep.house].object_xy)
         paths[f"{i}_found"] = obj_xy[targets[i][found_mask]].astype(np.float32)
