@@ -246,13 +246,14 @@ def _walk_planned(strategy, states, n: int, check) -> int:
     act = jax.jit(strategy.act, static_argnums=2)
     env_step = jax.jit(step, static_argnums=2)
     update = jax.jit(strategy.update)
+    explore = jax.jit(strategy.explorer.explore, static_argnums=2)
     planned = 0
     for b in range(n):
         state = _one(states, b)
         memory = strategy.init(observe(state), SMOKE)
         for _ in range(60):
             obs = observe(state)
-            _, frontier, _ = strategy.explorer.explore(memory.explore, obs, SMOKE)
+            _, frontier, _ = explore(memory.explore, obs, SMOKE)
             action, decision, new_memory = act(memory, obs, SMOKE)
             if bool(decision.planned):
                 check(obs, memory, bool(frontier))
