@@ -148,8 +148,8 @@ def plot_targets(means: dict[str, np.ndarray], path: str) -> None:
 def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
     """Where the targets are at the end, per episode (runs recorded since the fields
     exist; older runs are left out): verified, unverified on a receptacle the agent
-    detected, on one it never detected, on the floor; the share of metres toured and of
-    the finds made while touring."""
+    detected, on one it never detected, on the floor, and of those in a room never
+    entered; the share of metres toured and of the finds made while touring."""
     rows = []
     means = account_means(runs, keys, labels)
     for label, run in zip(labels, runs, strict=True):
@@ -159,18 +159,22 @@ def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
         cells = " | ".join(f"{v:.2f}" for v in means[label])
         share = np.mean([e["touring_share"] for e in eps])
         toured = sum(e["found_touring"] for e in eps) / max(sum(e["found"] for e in eps), 1)
-        rows.append(f"| {label} | {cells} | {share:.2f} | {toured:.2f} |")
+        # runs recorded before the field existed show a blank
+        unentered = (f"{np.mean([e['missed_unentered'] for e in eps]):.2f}"
+                     if "missed_unentered" in eps[0] else "")  # fmt: skip
+        rows.append(f"| {label} | {cells} | {unentered} | {share:.2f} | {toured:.2f} |")
     if not rows:
         return []
     return [
         "",
         "Targets per episode at the end: verified; unverified on a receptacle the agent "
-        "detected, on one it never detected, on the floor; the share of metres spent "
-        "touring, and of the finds made while touring.",
+        "detected, on one it never detected, on the floor, and (of those unverified) in a "
+        "room the agent never entered; the share of metres spent touring, and of the finds "
+        "made while touring.",
         "",
         "| method | found | on a detected receptacle | on an undetected one | on the floor "
-        "| touring share | finds while touring |",
-        "|---|---|---|---|---|---|---|",
+        "| in a room never entered | touring share | finds while touring |",
+        "|---|---|---|---|---|---|---|---|",
         *rows,
     ]
 

@@ -42,15 +42,15 @@ def test_compare_accounts_for_the_unverified_targets(tmp_path):
     b = _run(tmp_path, "b", "bfsop_st", (0.2, 0.2, 0.5))
     path = tmp_path / "b" / "results.json"
     saved = json.loads(path.read_text())
-    for e, (seen, unseen, share) in zip(saved["episodes"], ((0, 1, 0.5), (1, 1, 0.2), (2, 4, 0.2)),
-                                        strict=True):  # fmt: skip
+    cases = ((0, 1, 0.5, 1), (1, 1, 0.2, 0), (2, 4, 0.2, 2))
+    for e, (seen, unseen, share, away) in zip(saved["episodes"], cases, strict=True):
         found = e["total"] - seen - unseen
         e.update(found=found, missed_seen=seen, missed_unseen=unseen, missed_floor=0,
-                 touring_share=share, found_touring=found // 2)  # fmt: skip
+                 missed_unentered=away, touring_share=share, found_touring=found // 2)  # fmt: skip
     path.write_text(json.dumps(saved))
     table, _, _ = compare.compare([f"{a}:tfl_reactive", f"{b}:bfsop_st"], ["T", "B"])
     # only the run that records the fields gets a row: means over the three episodes
-    assert "| B | 2.67 | 1.00 | 2.00 | 0.00 | 0.30 | 0.50 |" in table  # found 0, 2, 6
+    assert "| B | 2.67 | 1.00 | 2.00 | 0.00 | 1.00 | 0.30 | 0.50 |" in table  # found 0, 2, 6
     assert "| T | " not in table.split("Targets per episode")[1]
     png = tmp_path / "c.png"
     assert compare.main([f"{a}:tfl_reactive", f"{b}:bfsop_st", "--png", str(png)]) == 0

@@ -66,6 +66,7 @@ def test_table1_outputs(table1):
         assert missed == r["total"] - r["found"] and min(
             r["missed_seen"], r["missed_unseen"], r["missed_floor"]) >= 0  # fmt: skip
         assert 0.0 <= r["touring_share"] <= 1.0 and 0 <= r["found_touring"] <= r["found"]
+        assert 0 <= r["missed_unentered"] <= missed
         if r["method"] == "fbe":
             assert r["switches"] == 0 and r["planner_calls"] == 0 and r["touring_share"] == 0
             assert r["found_touring"] == 0

@@ -20,6 +20,8 @@ from bfsop_jax.agents import (
     NearestNeighbourPlanner,
     TFLReactive,
     TFLReactiveConfig,
+    VNSPlanner,
+    continue_rollout,
     max_macro_steps,
     rollout,
 )
@@ -302,3 +304,27 @@ def test_bfsop_new_only_tours_when_a_new_landmark_appears():
         assert not frontier or bool(np.any(pending & ~before))
 
     assert _walk_planned(strategy, states, 3, check) >= 1, "no tour: the test would be vacuous"
+
+
+def test_bfsop_tours_may_use_all_that_remains_once_nothing_is_left_to_explore():
+    """The tour horizon only serves to return to exploring sooner: once no frontier is
+    left, a tour may use the whole remaining budget. With a 1 mm horizon no tour fits
+    while exploring, so every landmark would otherwise stay pending when exploration ends
+    and the episode would stop with budget left; now the tours run then, and it ends with
+    the budget spent or nothing pending."""
+    budget = 150.0
+    keys = jax.vmap(jax.random.key)(jnp.asarray((1000000, 1000001)))
+    houses = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(keys, SMOKE)
+    states = jax.jit(jax.vmap(lambda k, h: reset(k, h, 2, SMOKE, PRIOR, budget)))(keys, houses)
+    # the VNS keeps to the budget (the nearest-neighbour planner ignores it)
+    strategy = BFSOP(VNSPlanner(seed=0), BFSOPConfig(tour_horizon_m=1e-3, cover=False))
+    memory = jax.vmap(lambda s: strategy.init(observe(s), SMOKE))(states)
+    n = max_macro_steps(budget, SMOKE)
+    run = jax.jit(jax.vmap(lambda s, m: continue_rollout(s, m, strategy, SMOKE, n)))
+    final, memory, traj = run(states, memory)
+    assert not np.asarray(traj.active)[:, -1].any(), "episodes did not end"
+    pending = np.asarray(jax.vmap(pending_landmarks)(jax.vmap(observe)(final), memory.tour.retired))
+    done = np.asarray(final.done)
+    assert (~done).any(), "every episode spent its budget: the test would be vacuous"
+    assert np.all(done | ~pending.any(-1)), (done, pending.sum(-1))
+    assert int(np.asarray(traj.touring)[~done].sum()) > 0  # the tours did run

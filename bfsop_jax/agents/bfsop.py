@@ -14,7 +14,8 @@ to exploitation when
 * no frontier is reachable, or
 * the landmark cap ``preset.n_loi`` is full.
 
-A tour may use at most ``tour_horizon_m`` metres (the SOP budget, 20 m by default). On
+A tour may use at most ``tour_horizon_m`` metres (the SOP budget, 20 m by default) while a
+frontier is left, and all that remains once none is (nothing to return to). On
 switching, the SOP instance is built on the online map and the *planner* (the VNS
 teacher through its host callback, or the Strategic Transformer) computes the tour,
 executed as :mod:`bfsop_jax.agents.tour` describes: by default only its prefix with the
@@ -64,7 +65,8 @@ class BFSOPConfig:
     yield_weight: float = 0.0  # exploit when plan reward/metre > this x exploration yield
     budget_margin: float = 1.2  # exploit when the remaining budget is within this factor
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
-    # a tour may use at most this many metres (the SOP budget; inf = all that remains):
+    # a tour may use at most this many metres (the SOP budget; inf = all that remains)
+    # while a frontier is left (with none left it may use all that remains):
     # shorter tours return to exploring sooner and are re-planned on a larger map
     tour_horizon_m: float = 20.0
     # re-plan a tour being executed when a new landmark of interest is detected on the way

@@ -289,7 +289,8 @@ class TourStrategy:
         raise NotImplementedError
 
     def tour_budget(self, obs: Observation) -> jax.Array:
-        """Metres a tour may use (the SOP budget): by default all that remains."""
+        """Metres a tour may use while a frontier is left (the SOP budget): by default all
+        that remains. With no reachable frontier a tour may always use all that remains."""
         return obs.remaining
 
     # -- the strategy ------------------------------------------------------------------
@@ -349,9 +350,9 @@ class TourStrategy:
 
         parts = self.covers and self.parts
 
-        def posed(mask, obs, pending, covered):
+        def posed(mask, obs, pending, covered, budget):
             inst, choice = build_instance(
-                obs.belief, obs.pose[:2], self.tour_budget(obs), pending, obs.object_category,
+                obs.belief, obs.pose[:2], budget, pending, obs.object_category,
                 obs.object_xy, obs.object_half_extent, obs.prior, obs.category, preset,
                 covered if self.covers else None, parts, ~self._plentiful(obs),
             )  # fmt: skip
@@ -361,8 +362,11 @@ class TourStrategy:
         def unposed(*_):
             return *_empty_plan(preset), jnp.zeros((preset.n_loi, COVER_POINTS), bool)
 
+        # With nothing left to explore a tour may use all that remains: a horizon only
+        # serves to return to exploring sooner.
+        budget = jnp.where(has_frontier, self.tour_budget(obs), obs.remaining)
         inst, plan, loi_index, node_look, set_part = sparse_cond(
-            switch, posed, unposed, obs, pending, tour.covered
+            switch, posed, unposed, obs, pending, tour.covered, budget
         )
 
         # Tour slots from the plan: the start node first, then viewpoints.

@@ -349,8 +349,6 @@ def _episode_records(
     records, paths = [], {}
     for i, ep in enumerate(episodes):
         found_mask = np.asarray(final.found[i])[targets[i]]
-        missed = _missed_targets(houses[ep.house], targets[i][~found_mask],
-                                 np.asarray(final.receptacles_seen[i]))  # fmt: skip
         sel = np.concatenate([[0], 1 + np.flatnonzero(found_mask)])
         l_opt = metrics.optimal_visit_length(dist[i][np.ix_(sel, sel)]) if len(sel) > 1 else 0.0
         found, total = int(found_mask.sum()), len(targets[i])
@@ -362,6 +360,8 @@ def _episode_records(
         xy = np.asarray(traj.poses[i, ..., :2])[moved]
         tour = np.broadcast_to(touring[:, None], moved.shape)[moved]
         walked = np.concatenate([start_xy[i][None], xy])  # [P + 1, 2] start, then poses
+        missed = _missed_targets(houses[ep.house], targets[i][~found_mask],
+                                 np.asarray(final.receptacles_seen[i]), walked, preset)  # fmt: skip
         legs = np.diff(walked, axis=0)
         metres = np.sqrt(np.sum(legs * legs, axis=-1))
         gained = np.diff(np.asarray(traj.found_count[i]), prepend=initial_found)
@@ -395,22 +395,35 @@ def _episode_records(
     return records, paths
 
 
-def _missed_targets(house: House, missed: np.ndarray, receptacles_seen: np.ndarray) -> dict:
+def _missed_targets(
+    house: House, missed: np.ndarray, receptacles_seen: np.ndarray, walked: np.ndarray,
+    preset: Preset,
+) -> dict:  # fmt: skip
     """Where an episode's unverified targets are (metrics only: reads the true house).
 
     ``missed`` int32 [U]: object slots of the targets not verified; ``receptacles_seen``
-    bool [M]: the receptacles the agent detected. Returns the counts of those standing on
-    a receptacle the agent detected (``missed_seen``: a visit, or one more, could have
-    verified them), on one it never detected (``missed_unseen``: exploration did not get
-    there), and on the floor (``missed_floor``).
+    bool [M]: the receptacles the agent detected; ``walked`` float32 [P, 2]: the agent's
+    positions (metres). Returns the counts of those standing on a receptacle the agent
+    detected (``missed_seen``: a visit, or one more, could have verified them), on one it
+    never detected (``missed_unseen``: exploration did not get there), and on the floor
+    (``missed_floor``); and, across those three, the ones in a room the agent never set
+    foot in (``missed_unentered``: exploration's share that no better look would have
+    found).
     """
     parent = np.asarray(house.object_parent)[missed]
     on_floor = parent < 0
     seen = ~on_floor & np.asarray(receptacles_seen)[np.maximum(parent, 0)]
+    room_of_cell = np.asarray(house.room_of_cell)
+    h, w = room_of_cell.shape
+    cells = np.floor(walked / preset.cell_size).astype(np.int64)
+    rows, cols = np.clip(cells[:, 1], 0, h - 1), np.clip(cells[:, 0], 0, w - 1)
+    entered = np.unique(room_of_cell[rows, cols])
+    room = np.asarray(house.object_room)[missed]
     return {
         "missed_seen": int(seen.sum()),
         "missed_unseen": int((~on_floor & ~seen).sum()),
         "missed_floor": int(on_floor.sum()),
+        "missed_unentered": int((~np.isin(room, entered)).sum()),
     }
 
 
