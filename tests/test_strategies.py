@@ -29,7 +29,7 @@ from bfsop_jax.agents.planners import nearest_neighbour_plan
 from bfsop_jax.agents.sparse import sparse_cond
 from bfsop_jax.agents.tour import pending_landmarks
 from bfsop_jax.config import get_preset
-from bfsop_jax.env import observe, reset, step
+from bfsop_jax.env import Action, observe, reset, step
 from bfsop_jax.sop.types import SOPInstance
 from bfsop_jax.world import generate_house
 from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS
@@ -329,3 +329,35 @@ def test_bfsop_tours_may_use_all_that_remains_once_nothing_is_left_to_explore():
     assert (detected > 0).all(), "no landmark detected: the test would be vacuous"
     # every episode toured after exploring (no tour fits the horizon while exploring)
     assert (touring > 0).all() and (retired > 0).all(), (touring, retired, detected)
+
+
+@pytest.mark.parametrize("limit", [0.0, 2.0])
+def test_walk_limit_ends_a_tour_whose_leg_outgrows_its_plan(limit):
+    """Past ``walk_limit`` x the planned leg + 1 m the tour ends and its landmark stays
+    pending; with no limit (0) the walk goes on."""
+    state = _one(_states((1000000,)), 0)
+    obs = observe(state)
+    strategy = TFLReactive(TFLReactiveConfig(walk_limit=limit))
+    memory = strategy.init(obs, SMOKE)
+    t = SMOKE.n_loi
+    tour = memory.tour.replace(
+        touring=jnp.ones((), bool),
+        landmark=jnp.full((t,), -1, jnp.int32).at[:2].set(jnp.asarray([5, 6])),
+        leg=jnp.zeros((t,), jnp.float32).at[:2].set(jnp.asarray([3.0, 2.0])),
+        length=jnp.asarray(2, jnp.int32),
+    )
+    memory = memory.replace(tour=tour)
+    _, info = step(state, Action(goal_xy=obs.pose[:2], look_xy=obs.pose[:2],
+                                 look=jnp.zeros((), bool)), SMOKE)  # fmt: skip
+    walk = info.replace(
+        arrived=jnp.zeros((), bool), unreachable=jnp.zeros((), bool),
+        blocked=jnp.zeros((), bool), travelled=jnp.asarray(3.5, jnp.float32),
+    )  # fmt: skip
+    update = jax.jit(strategy.update)
+    memory = update(memory, obs, obs, walk)  # 3.5 m of the 2 x 3 + 1 = 7 allowed
+    assert bool(memory.tour.touring) and int(memory.tour.position) == 0
+    memory = update(memory, obs, obs, walk)  # 7.0 m: still within
+    assert bool(memory.tour.touring) and float(memory.tour.leg_walked) == 7.0
+    memory = update(memory, obs, obs, walk.replace(travelled=jnp.asarray(0.25, jnp.float32)))
+    assert bool(memory.tour.touring) == (limit == 0)
+    assert not bool(memory.tour.retired[5]) and not bool(memory.tour.retired[6])

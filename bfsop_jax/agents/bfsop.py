@@ -21,7 +21,9 @@ teacher through its host callback, or the Strategic Transformer) computes the to
 executed as :mod:`bfsop_jax.agents.tour` describes: by default only its prefix with the
 best reward per metre (``best_rate_prefix``), with landmark coverage (``cover``) and the
 thirds of long landmarks as SOP sets (``parts``) until ``plentiful_after`` (2) targets
-are verified, then one visit per whole landmark.
+are verified, then one visit per whole landmark; a tour ends once the walk to a viewpoint
+outgrows twice its planned leg plus 1 m (``walk_limit``: the plan priced it on the
+optimistic map, and a wall seen on the way can make it much longer).
 
 Exact arithmetic: the estimate's distances come from whole 1/64 m coordinates and the
 yield from whole 2^-16 reward units with an explicit rounding per operation, so the
@@ -56,7 +58,8 @@ class BFSOPConfig:
     """Tunable numbers of the strategy switcher.
 
     The defaults were chosen on validation houses (docs/results.md): a 20 m horizon with
-    the best-rate prefix, landmark coverage with part sets, until two targets are found.
+    the best-rate prefix, landmark coverage with part sets, until two targets are found,
+    and tours that end when a leg outgrows twice its plan.
     """
 
     detour: float = 1.3  # geodesic / straight-line ratio assumed by the cheap estimate
@@ -65,6 +68,9 @@ class BFSOPConfig:
     yield_weight: float = 0.0  # exploit when plan reward/metre > this x exploration yield
     budget_margin: float = 1.2  # exploit when the remaining budget is within this factor
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
+    # the tour ends, its landmark left pending, once the walk to a viewpoint exceeds this
+    # many times the planned leg plus 1 m (walls seen on the way); 0: never
+    walk_limit: float = 2.0
     # a tour may use at most this many metres (the SOP budget; inf = all that remains)
     # while a frontier is left (with none left it may use all that remains):
     # shorter tours return to exploring sooner and are re-planned on a larger map

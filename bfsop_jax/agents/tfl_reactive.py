@@ -31,6 +31,9 @@ class TFLReactiveConfig:
     radius_m: float = 4.0  # trigger radius around the agent (metres, straight line)
     timer_m: float = 40.0  # metres explored with landmarks pending before a forced visit
     max_attempts: int = 3  # blocked macro steps before a tour viewpoint is skipped
+    # the tour ends, its landmark left pending, once the walk to a viewpoint exceeds this
+    # many times the planned leg plus 1 m (walls seen on the way); 0: never
+    walk_limit: float = 0.0
     # True: a landmark stays pending until every coverage point of its footprint has been
     # seen (or a visit sees nothing new), each visit completing what it can; False (the
     # default, chosen on validation houses): retired at its first visit

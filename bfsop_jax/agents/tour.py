@@ -7,8 +7,11 @@ to exploit: the SOP instance is posed on the online map
 (:func:`bfsop_jax.sop.builder.build_instance`, the agent's observation only), its
 *planner* returns a tour of viewpoints, and the tour is executed to its end, truncated by
 the budget gate; a viewpoint that turns out unreachable, or stays blocked for
-``max_attempts`` macro steps, is skipped. Then the agent explores again. No mode flip
-mid-tour.
+``max_attempts`` macro steps, is skipped. The plan prices its legs on the optimistic map
+of its time, so walls seen on the way may make one far longer: with ``walk_limit`` > 0 the
+tour ends once the walk to a viewpoint exceeds that many times its planned leg plus 1 m,
+the landmark staying pending (to be priced again on the grown map). Then the agent
+explores again. No mode flip mid-tour.
 
 Visits: by default (``config.cover = False``) a landmark is retired once a viewpoint
 of it is reached. A viewpoint sees only part of a large landmark within the
@@ -82,6 +85,8 @@ class TourMemory:
     extra_look: jax.Array  # float32 [2]
     extra_landmark: jax.Array  # int32 []: its landmark
     extra_left: jax.Array  # float32 []: metres the walk to it may still take
+    leg: jax.Array  # float32 [T]: planned metres to each tour viewpoint from the one before
+    leg_walked: jax.Array  # float32 []: metres walked towards the current tour viewpoint
 
 
 @struct.dataclass
@@ -198,6 +203,7 @@ def _skip_retired(tour: TourMemory) -> TourMemory:
     return tour.replace(
         position=position,
         attempts=jnp.where(moving & (position != tour.position), 0, tour.attempts),
+        leg_walked=jnp.where(moving & (position != tour.position), 0.0, tour.leg_walked),
         touring=tour.touring & (tour.extra | (position < tour.length)),
     )
 
@@ -227,6 +233,12 @@ class TourStrategy:
     def max_attempts(self) -> int:
         """Blocked macro steps before a tour viewpoint is skipped."""
         return self.config.max_attempts
+
+    @property
+    def walk_limit(self) -> float:
+        """The tour ends (the landmark it was walking to stays pending) once the walk to a
+        viewpoint exceeds this many times the planned leg, plus 1 m; 0: never."""
+        return float(getattr(self.config, "walk_limit", 0.0))
 
     @property
     def replans(self) -> bool:
@@ -312,6 +324,8 @@ class TourStrategy:
             extra_look=jnp.zeros((2,), jnp.float32),
             extra_landmark=jnp.full((), -1, jnp.int32),
             extra_left=jnp.zeros((), jnp.float32),
+            leg=jnp.zeros((t,), jnp.float32),
+            leg_walked=jnp.zeros((), jnp.float32),
         )
         return SwitchMemory(
             tour=tour,
@@ -375,6 +389,8 @@ class TourStrategy:
         sets = inst.set_id[jnp.maximum(nodes, 0)]
         landmark = jnp.where(is_vp, loi_index[jnp.maximum(sets - 1, 0)], -1)
         goal = inst.coords[jnp.maximum(nodes, 0)]
+        prev = plan.nodes[: preset.n_loi]
+        leg = jnp.where(is_vp, inst.cost[jnp.maximum(prev, 0), jnp.maximum(nodes, 0)], 0.0)
         look = node_look[jnp.maximum(nodes, 0)]
         length = self.tour_length(inst, plan.nodes[: preset.n_loi + 1])
         started = switch & (length > 0)
@@ -397,6 +413,8 @@ class TourStrategy:
             length=jnp.where(started, length, tour.length),
             position=jnp.where(started, 0, tour.position),
             attempts=jnp.where(started, 0, tour.attempts),
+            leg=jnp.where(started, leg, tour.leg),
+            leg_walked=jnp.where(started, 0.0, tour.leg_walked),
             retired=retired,
         )
         explore_memory = jax.tree_util.tree_map(
@@ -436,16 +454,28 @@ class TourStrategy:
         attempts = tour.attempts + info.blocked.astype(jnp.int32)
         ended = info.arrived | info.unreachable | (attempts >= self.max_attempts)
         lm = tour.landmark[pos]
-        done_vp = tour.touring & ~tour.extra & ended  # a tour slot
+        slot_walk = tour.touring & ~tour.extra
+        leg_walked = tour.leg_walked + jnp.where(slot_walk, info.travelled, 0.0)
+        # The plan priced the walk on the map of its time (unknown cells free); walls seen
+        # on the way may make it far longer. Past the limit the tour ends there and the
+        # landmark stays pending, to be priced again on the grown map.
+        too_far = np.bool_(self.walk_limit > 0) & ~ended & (
+            leg_walked > np.float32(self.walk_limit) * tour.leg[pos] + np.float32(1.0)
+        )
+        done_vp = slot_walk & (ended | too_far)  # a tour slot
         extra_left = tour.extra_left - jnp.where(tour.extra, info.travelled, 0.0)
         done_x = tour.touring & tour.extra & (ended | (extra_left < 0))  # a completion
         # An arrival is judged by what the agent sees there, at the next act (_fold_arrival).
         judged = done_vp & (lm >= 0) & info.arrived & np.bool_(self.covers)
-        retired = tour.retired.at[jnp.maximum(lm, 0)].max(done_vp & (lm >= 0) & ~judged)
+        retired = tour.retired.at[jnp.maximum(lm, 0)].max(
+            done_vp & (lm >= 0) & ~judged & ~too_far
+        )
         xlm = tour.extra_landmark  # a failed completion leaves its landmark pending
         arrived_at = jnp.where(judged, lm, tour.arrived_at)
         arrived_at = jnp.where(done_x & info.arrived, xlm, arrived_at)
         position = tour.position + done_vp.astype(jnp.int32)
+        # the rest of the plan assumed that viewpoint reached: the tour ends there
+        position = jnp.where(slot_walk & too_far, tour.length, position)
         extra = tour.extra & ~done_x
         exploring = ~tour.touring
         explore = self.explorer.update(memory.explore, before, after, info)
@@ -454,6 +484,7 @@ class TourStrategy:
                 touring=tour.touring & ((position < tour.length) | extra),
                 position=position,
                 attempts=jnp.where(done_vp | done_x, 0, attempts),
+                leg_walked=jnp.where(done_vp, 0.0, leg_walked),
                 retired=retired,
                 arrived_at=arrived_at,
                 extra=extra,
