@@ -459,10 +459,10 @@ class TourStrategy:
         # The plan priced the walk on the map of its time (unknown cells free); walls seen
         # on the way may make it far longer. Past the limit the tour ends there and the
         # landmark stays pending, to be priced again on the grown map.
-        too_far = np.bool_(self.walk_limit > 0) & ~ended & (
+        too_far = slot_walk & np.bool_(self.walk_limit > 0) & ~ended & (
             leg_walked > np.float32(self.walk_limit) * tour.leg[pos] + np.float32(1.0)
         )
-        done_vp = slot_walk & (ended | too_far)  # a tour slot
+        done_vp = (slot_walk & ended) | too_far  # a tour slot
         extra_left = tour.extra_left - jnp.where(tour.extra, info.travelled, 0.0)
         done_x = tour.touring & tour.extra & (ended | (extra_left < 0))  # a completion
         # An arrival is judged by what the agent sees there, at the next act (_fold_arrival).
@@ -475,7 +475,7 @@ class TourStrategy:
         arrived_at = jnp.where(done_x & info.arrived, xlm, arrived_at)
         position = tour.position + done_vp.astype(jnp.int32)
         # the rest of the plan assumed that viewpoint reached: the tour ends there
-        position = jnp.where(slot_walk & too_far, tour.length, position)
+        position = jnp.where(too_far, tour.length, position)
         extra = tour.extra & ~done_x
         exploring = ~tour.touring
         explore = self.explorer.update(memory.explore, before, after, info)
