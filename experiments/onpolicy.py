@@ -4,7 +4,7 @@
 
 The held-out instances of ``experiments.distill --stage eval`` are virtual tasks posed
 like the training data (long budgets, one set per landmark). Online, BF-SOP poses other
-ones: a 20 m tour horizon, landmark parts as sets, coverage. This tool drives BF-SOP
+ones: its short tour horizon, landmark parts as sets, coverage. This tool drives BF-SOP
 episodes with the Transformer planning (up to ``--categories`` target categories per
 house), has the VNS teacher label every instance the Transformer planned
 (:func:`bfsop_jax.data.generate.student_records`, the DAgger rows), and prints the

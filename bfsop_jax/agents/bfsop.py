@@ -57,7 +57,7 @@ _REWARD_UNITS = 65536.0  # yield bookkeeping in whole 2^-16 reward units
 class BFSOPConfig:
     """Tunable numbers of the strategy switcher.
 
-    The defaults were chosen on validation houses (docs/results.md): a 20 m horizon with
+    The defaults were chosen on validation houses (docs/results.md): a 6 m horizon with
     the best-rate prefix, landmark coverage with part sets, until two targets are found,
     and tours that end when a leg outgrows twice its plan.
     """
@@ -73,8 +73,10 @@ class BFSOPConfig:
     walk_limit: float = 2.0
     # a tour may use at most this many metres (the SOP budget; inf = all that remains)
     # while a frontier is left (with none left it may use all that remains):
-    # shorter tours return to exploring sooner and are re-planned on a larger map
-    tour_horizon_m: float = 20.0
+    # shorter tours return to exploring sooner and are re-planned on a larger map; a
+    # landmark beyond it waits until the agent passes nearer (6 m since 2026-12-06, 20 m
+    # before: many-instance episodes toured half their metres and found fewer)
+    tour_horizon_m: float = 6.0
     # re-plan a tour being executed when a new landmark of interest is detected on the way
     # (the plan covers it and the rest of the old tour); False: tours run to their end
     replan: bool = False
