@@ -74,8 +74,7 @@ class BFSOPConfig:
     # a tour may use at most this many metres (the SOP budget; inf = all that remains)
     # while a frontier is left (with none left it may use all that remains):
     # shorter tours return to exploring sooner and are re-planned on a larger map; a
-    # landmark beyond it waits until the agent passes nearer (6 m since 2026-12-06, 20 m
-    # before: many-instance episodes toured half their metres and found fewer)
+    # landmark beyond it waits until the agent passes nearer (docs/navigation.md)
     tour_horizon_m: float = 6.0
     # re-plan a tour being executed when a new landmark of interest is detected on the way
     # (the plan covers it and the rest of the old tour); False: tours run to their end
