@@ -47,8 +47,8 @@ SCAN_GRID: dict[str, list[dict[str, Any]]] = {
         for r, t in itertools.product((2.0, 3.0, 4.0, 5.0, 6.0), (10.0, 20.0, 40.0))
     ],
     # the switcher shared by both BF-SOP variants, scanned with the Transformer planner
-    "bfsop_st": [{"tour_horizon_m": h} for h in (20.0, 40.0, 1000.0)]
-    + [{"tour_horizon_m": 40.0, "yield_weight": w} for w in (0.0, 0.5)],
+    "bfsop_st": [{"tour_horizon_m": h} for h in (4.0, 6.0, 10.0, 20.0, 1000.0)]
+    + [{"tour_horizon_m": 6.0, "yield_weight": w} for w in (0.5, 1.0)],
 }
 
 

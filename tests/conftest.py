@@ -2,12 +2,26 @@
 
 from __future__ import annotations
 
+import getpass
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+# Most of the suite's time is XLA compilation, and many tests compile the same programs
+# (house generation, rollouts of one strategy at one batch size) from fresh closures, in
+# either of the two xdist workers. JAX's persistent compilation cache, shared by the
+# workers (and by the experiments the tests start as subprocesses), compiles each once.
+# Set JAX_COMPILATION_CACHE_DIR to choose the folder; the default lives in the system's
+# temporary folder.
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR",
+    str(Path(tempfile.gettempdir()) / f"bfsop-jax-test-xla-cache-{getpass.getuser()}"),
+)
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
 
 def shared_path(*parts: str) -> Path:

@@ -14,7 +14,7 @@ to exploitation when
 * no frontier is reachable, or
 * the landmark cap ``preset.n_loi`` is full.
 
-A tour may use at most ``tour_horizon_m`` metres (the SOP budget, 20 m by default) while a
+A tour may use at most ``tour_horizon_m`` metres (the SOP budget, 6 m by default) while a
 frontier is left, and all that remains once none is (nothing to return to). On
 switching, the SOP instance is built on the online map and the *planner* (the VNS
 teacher through its host callback, or the Strategic Transformer) computes the tour,
