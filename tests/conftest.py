@@ -14,7 +14,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 # Most of the suite's time is XLA compilation, and many tests compile the same programs
 # (house generation, rollouts of one strategy at one batch size) from fresh closures, in
 # either of the two xdist workers. JAX's persistent compilation cache, shared by the
-# workers (and by the experiments the tests start as subprocesses), compiles each once.
+# workers (and by the experiments the tests start as subprocesses), compiles each one
+# that takes 0.5 s or more once (docs/benchmarks.md, "The test suite").
 # Set JAX_COMPILATION_CACHE_DIR to choose the folder; the default lives in the system's
 # temporary folder.
 os.environ.setdefault(
