@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import getpass
 import os
 import tempfile
 from pathlib import Path
@@ -17,10 +16,12 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 # workers (and by the experiments the tests start as subprocesses), compiles each one
 # that takes 0.5 s or more once (docs/benchmarks.md, "The test suite").
 # Set JAX_COMPILATION_CACHE_DIR to choose the folder; the default lives in the system's
-# temporary folder.
+# temporary folder, one per user id (a name from getpass.getuser() would fail for a
+# container user without a passwd entry).
+_USER = os.getuid() if hasattr(os, "getuid") else "user"
 os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR",
-    str(Path(tempfile.gettempdir()) / f"bfsop-jax-test-xla-cache-{getpass.getuser()}"),
+    str(Path(tempfile.gettempdir()) / f"bfsop-jax-test-xla-cache-{_USER}"),
 )
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
