@@ -19,10 +19,8 @@ from bfsop_jax.agents import (
     rollout,
 )
 from bfsop_jax.agents.bfsop import best_rate_prefix
-from bfsop_jax.agents.tour import fold_glimpse
 from bfsop_jax.config import get_preset
 from bfsop_jax.env import reset
-from bfsop_jax.env.types import Observation
 from bfsop_jax.sop.builder import (
     COVER_POINTS,
     PART_SPLIT_M,
@@ -135,8 +133,7 @@ def _states(seeds: tuple[int, ...]):
 COVERING = (
     TFLReactive(TFLReactiveConfig(cover=True, complete=False)),
     BFSOP(NearestNeighbourPlanner(), BFSOPConfig(cover=True, best_rate_prefix=True)),
-    BFSOP(NearestNeighbourPlanner(), BFSOPConfig(cover=True, parts=True, complete=False,
-                                                 glimpse=True)),
+    BFSOP(NearestNeighbourPlanner(), BFSOPConfig(cover=True, parts=True, complete=False)),
 )
 
 
@@ -260,59 +257,3 @@ def test_plentiful_after_retires_landmarks_seen_in_part():
     strategy = BFSOP(NearestNeighbourPlanner(), BFSOPConfig(plentiful_after=1, **base))
     late, anywhere = _partial_pending(strategy, cases, 1)
     assert late == 0 and anywhere > 0
-
-
-def _one_landmark_obs(pose, centre, half, wall_x=None):
-    """A bare observation: an empty known-free map (optionally a wall across x = wall_x),
-    one detected landmark of interest in slot 0 of 3."""
-    h, w = SMOKE.grid_shape
-    belief = jnp.full((h, w), -1.0, jnp.float32)
-    if wall_x is not None:
-        col = int(wall_x / SMOKE.cell_size)
-        belief = belief.at[:, col].set(2.0)
-    m = 3
-    return Observation(
-        belief=belief, pose=jnp.asarray(pose, jnp.float32), path_length=jnp.float32(0.0),
-        budget=jnp.float32(BUDGET), category=jnp.int32(0), prior=PRIOR,
-        object_seen=jnp.zeros(m, bool).at[0].set(True),
-        object_category=jnp.full(m, -1, jnp.int32).at[0].set(0),
-        object_xy=jnp.zeros((m, 2), jnp.float32).at[0].set(jnp.asarray(centre)),
-        object_half_extent=jnp.zeros((m, 2), jnp.float32).at[0].set(jnp.asarray(half)),
-        landmark=jnp.zeros(m, bool).at[0].set(True), found=jnp.zeros(m, bool),
-        done=jnp.zeros((), bool),
-    )  # fmt: skip
-
-
-def test_glimpse_marks_points_in_reach_view_and_sight():
-    """Points seen in passing count as covered when their whole cell is in reach and view,
-    unless a known wall stands between; a landmark seen whole so is retired."""
-    strategy = BFSOP(NearestNeighbourPlanner(), BFSOPConfig(glimpse=True))
-    centre, half = (5.0, 5.0), (0.25, 0.25)
-    east = (5.0 - 0.25 - 0.3, 5.0, 0.0)  # 0.3 m short of the footprint, facing it
-    far = (5.0 - 0.25 - 0.3, 5.0 - 1.5, 0.0)  # beside it, out of reach
-    fold = jax.jit(lambda tour, obs, poses: fold_glimpse(tour, obs, poses, SMOKE))
-
-    obs = _one_landmark_obs(east, centre, half)
-    tour = strategy.init(obs, SMOKE).tour
-    out = fold(tour, obs, jnp.asarray([far], jnp.float32))
-    assert not np.asarray(out.covered).any()  # passing by out of reach marks nothing
-    out = fold(tour, obs, jnp.asarray([far, east], jnp.float32))
-    marked = np.asarray(out.covered[0])
-    assert 0 < marked.sum() < COVER_POINTS and not bool(out.retired[0])
-    assert not np.asarray(out.covered[1:]).any()  # undetected slots stay untouched
-    # a marked point's whole cell is in reach and view; the far side is not marked
-    pts = np.asarray(coverage_points(jnp.asarray(centre), jnp.asarray(half)))
-    cell = np.asarray(half) / 3.0
-    for p in pts[marked]:
-        corners = p + cell * np.asarray([[-1, -1], [-1, 1], [1, -1], [1, 1]])
-        assert np.asarray(covered_from(jnp.asarray(corners), obs.pose, SMOKE)).all()
-    assert not marked[pts[:, 0] > centre[0]].any()
-
-    # a known wall between the agent and the landmark hides it
-    walled = _one_landmark_obs(east, centre, half, wall_x=5.0 - 0.25 - 0.15)
-    assert not np.asarray(fold(tour, walled, jnp.asarray([east], jnp.float32)).covered).any()
-
-    # a small landmark right ahead is seen whole and retired
-    small = _one_landmark_obs((4.6, 5.0, 0.0), centre, (0.1, 0.1))
-    out = fold(strategy.init(small, SMOKE).tour, small, jnp.asarray([(4.6, 5.0, 0.0)]))
-    assert np.asarray(out.covered[0]).all() and bool(out.retired[0])

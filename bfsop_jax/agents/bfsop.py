@@ -96,9 +96,6 @@ class BFSOPConfig:
     # this house), a landmark seen in part is retired, not gone back to: many targets
     # reward visiting many landmarks once more than covering a few; 0 = never
     plentiful_after: int = 2
-    # with cover: coverage points seen from any pose within reach, in view and in line of
-    # sight on the map count as seen, not only those seen on a visit (False: visits only)
-    glimpse: bool = False
     # > 0: tour only when a pending landmark lies within this many metres of the agent
     # (straight line to its centre), after ``timer_m`` metres explored with landmarks
     # pending, or when the budget or the landmark cap presses (a reactive trigger; the SOP

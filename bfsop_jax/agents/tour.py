@@ -59,7 +59,6 @@ __all__ = [
     "SwitchMemory",
     "TourMemory",
     "TourStrategy",
-    "fold_glimpse",
     "landmark_rewards",
     "pending_landmarks",
     "pending_within",
@@ -88,7 +87,6 @@ class TourMemory:
     extra_left: jax.Array  # float32 []: metres the walk to it may still take
     leg: jax.Array  # float32 [T]: planned metres to each tour viewpoint from the one before
     leg_walked: jax.Array  # float32 []: metres walked towards the current tour viewpoint
-    passed: jax.Array  # float32 [K, 3]: the poses of the last step's motion steps
 
 
 @struct.dataclass
@@ -210,63 +208,6 @@ def _skip_retired(tour: TourMemory) -> TourMemory:
     )
 
 
-def fold_glimpse(
-    tour: TourMemory, obs: Observation, poses: jax.Array, preset: Preset
-) -> TourMemory:
-    """Mark the coverage points of every pending landmark seen from any of ``poses``.
-
-    Exploration and tours pass close to landmarks they are not visiting: a point whose
-    whole cell (its four corners: a target may stand anywhere in it) lies within
-    :func:`bfsop_jax.sop.builder.cover_radius` of a pose, inside its view and in line of
-    sight on the agent's map (no known-occupied fine cell on the way outside the
-    landmark's own footprint) has been looked at, and a target there would have been
-    verified. A landmark whose points are then all seen is retired; one seen in part is
-    worth the posterior of the rest. ``poses`` float32 [K, 3] (x, y metres, heading).
-    """
-    live = obs.landmark & ~tour.retired
-    points = coverage_points(obs.object_xy, obs.object_half_extent)  # [M, P, 2]
-    # the corners of each point's cell: a target may stand anywhere in it
-    corner = obs.object_half_extent[:, None, None, :] / 3.0 * _CORNERS  # [M, 1, 4, 2]
-    corners = (points[:, :, None, :] + corner).reshape(points.shape[0], -1, 2)  # [M, 4P, 2]
-
-    def seen_from(pose):
-        ok = covered_from(corners, pose, preset) & _in_sight(obs, corners, pose, preset)
-        return jnp.all(ok.reshape(points.shape[:2] + (4,)), axis=-1)
-
-    seen = jnp.any(jax.vmap(seen_from)(poses), axis=0) & live[:, None]
-    covered = tour.covered | seen
-    return tour.replace(covered=covered, retired=tour.retired | (live & jnp.all(covered, -1)))
-
-
-_CORNERS = np.asarray([[-1, -1], [-1, 1], [1, -1], [1, 1]], np.float32)
-_SIGHT_SAMPLES = 8  # samples on the way to a coverage point (<= 0.1 m apart at 0.8 m)
-
-
-def _in_sight(obs: Observation, points: jax.Array, pose: jax.Array, preset: Preset) -> jax.Array:
-    """bool [M, P]: no known-occupied fine cell between ``pose`` and each point, except
-    within the point's own landmark footprint grown by one cell. ``points`` [M, P, 2] m.
-
-    Positions are whole 1/64 m units and the samples integer fractions of the way, so a
-    batched and a single call decide alike.
-    """
-    h, w = preset.grid_shape
-    s = _SIGHT_SAMPLES + 1
-    q = jnp.round(points * 64.0).astype(jnp.int32)  # [M, P, 2]
-    a = jnp.round(pose[:2] * 64.0).astype(jnp.int32)
-    j = jnp.arange(1, s, dtype=jnp.int32)[:, None]  # [S, 1]
-    way = a + ((q[..., None, :] - a) * j) // s  # [M, P, S, 2], 1/64 m
-    cell = jnp.floor(way.astype(jnp.float32) * np.float32(1.0 / (64.0 * preset.cell_size)))
-    cell = cell.astype(jnp.int32)
-    col, row = cell[..., 0], cell[..., 1]
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    occupied = obs.belief[jnp.clip(row, 0, h - 1), jnp.clip(col, 0, w - 1)]
-    occupied = inside & (occupied > np.float32(preset.logodds_known))
-    centre = jnp.round(obs.object_xy * 64.0).astype(jnp.int32)[:, None, None, :]
-    slack = jnp.round((obs.object_half_extent + preset.cell_size) * 64.0).astype(jnp.int32)
-    own = jnp.all(jnp.abs(way - centre) <= slack[:, None, None, :], axis=-1)
-    return ~jnp.any(occupied & ~own, axis=-1)
-
-
 COMPLETE_MAX_M = 3.0
 """A completion viewpoint is taken only this close (metres, geodesic on the optimistic map)."""
 
@@ -315,12 +256,6 @@ class TourStrategy:
     def completes(self) -> bool:
         """With coverage: whether a visit seen in part goes on to a completion viewpoint."""
         return bool(getattr(self.config, "complete", True))
-
-    @property
-    def glimpses(self) -> bool:
-        """With coverage: whether coverage points seen from any pose (not only on a visit)
-        count as seen (:func:`fold_glimpse`)."""
-        return bool(getattr(self.config, "glimpse", False))
 
     @property
     def plentiful_after(self) -> int:
@@ -391,7 +326,6 @@ class TourStrategy:
             extra_left=jnp.zeros((), jnp.float32),
             leg=jnp.zeros((t,), jnp.float32),
             leg_walked=jnp.zeros((), jnp.float32),
-            passed=jnp.broadcast_to(obs.pose, (preset.micro_steps, 3)).astype(jnp.float32),
         )
         return SwitchMemory(
             tour=tour,
@@ -407,9 +341,6 @@ class TourStrategy:
         tour = memory.tour
         if self.covers:
             tour = _fold_arrival(tour, obs, preset, self.completes)
-            if self.glimpses:
-                poses = jnp.concatenate([tour.passed, obs.pose[None]], axis=0)
-                tour = fold_glimpse(tour, obs, poses, preset)
             if self.plentiful_after > 0:
                 # the category is plentiful here: breadth over depth, so a landmark seen
                 # (in part) on a visit is not gone back to, and sets are whole landmarks
@@ -558,7 +489,6 @@ class TourStrategy:
                 arrived_at=arrived_at,
                 extra=extra,
                 extra_left=extra_left,
-                passed=info.poses,
             ),
             explore=jax.tree_util.tree_map(
                 lambda a, b: jnp.where(exploring, a, b), explore, memory.explore
