@@ -130,9 +130,12 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
     try:
         checked["settings"] = json.loads(args.settings) if args.settings else {}
         for name, fields in checked["settings"].items():
-            if name not in ("bfs_global", "tfl_reactive", "bfsop"):
-                raise ValueError(f"unknown key {name!r} (bfs_global, tfl_reactive, bfsop)")
-            nav.make_strategy("fbe" if name == "bfsop" else name, None, {name: fields})
+            if name not in ("bfs_global", "tfl_reactive", "bfsop", "transformer"):
+                raise ValueError(
+                    f"unknown key {name!r} (bfs_global, tfl_reactive, bfsop, transformer)"
+                )
+            base = name in ("bfsop", "transformer")
+            nav.make_strategy("fbe" if base else name, None, {name: fields})
     except (json.JSONDecodeError, TypeError, ValueError) as err:
         _fail(f"--settings: {err}")
     checked["policy"] = None

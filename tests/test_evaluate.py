@@ -101,6 +101,8 @@ def test_resume_refuses_another_protocol(table1):
         ("--house-seeds", "10:20", "training houses"),
         ("--checkpoint", "/nonexistent/run", "--checkpoint"),
         ("--batch", "0", "--batch"),
+        ("--settings", '{"transformer": {"beam": 4}}', "unexpected keyword argument 'beam'"),
+        ("--settings", '{"planner": {}}', "unknown key 'planner'"),
     ],
 )
 def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
@@ -151,3 +153,18 @@ def test_verification_points_give_a_sane_optimal_length():
     assert np.all(dist[0, 1:] >= straight - preset.verify_distance_m - 0.2)
     l_opt = metrics.optimal_visit_length(dist)
     assert l_opt >= dist[0, 1:].min() - 1e-6
+
+
+def test_transformer_settings_reach_the_planner():
+    """``{"transformer": {...}}`` sets the decoding options of BF-SOP (Transformer)."""
+    from bfsop_jax.eval.navigation import make_strategy
+
+    policy = object()  # only stored by the planner here
+    opts = {"multi_start": 8, "best_of": 4, "fill": True}
+    settings = {"transformer": opts, "bfsop": {"walk_limit": 3.0}}
+    strategy = make_strategy("bfsop_st", policy, settings)
+    planner = strategy.planner
+    assert (planner.multi_start, planner.best_of, planner.fill) == (8, 4, True)
+    assert planner.policy is policy and strategy.config.walk_limit == 3.0
+    plain = make_strategy("bfsop_st", policy).planner
+    assert (plain.multi_start, plain.best_of, plain.fill) == (False, 1, False)

@@ -182,10 +182,14 @@ def make_strategy(
     """The strategy behind a method name.
 
     ``settings`` override config fields: ``{"bfs_global": {...}, "tfl_reactive": {...},
-    "bfsop": {...}}`` (``"bfsop"``: the switcher of both BF-SOP variants).
+    "bfsop": {...}, "transformer": {...}}`` (``"bfsop"``: the switcher of both BF-SOP
+    variants; ``"transformer"``: the decoding options of :class:`TransformerPlanner`,
+    e.g. ``{"multi_start": 8, "best_of": 4, "fill": true}``).
     """
     settings = settings or {}
     switcher = BFSOPConfig(**settings.get("bfsop", {}))
+    decoding = settings.get("transformer", {})
+    TransformerPlanner(None, **decoding)  # unknown options fail here, whatever the method
     if name == "fbe":
         return FBE()
     if name == "bfs_global":
@@ -197,7 +201,7 @@ def make_strategy(
     if name == "bfsop_st":
         if policy is None:
             raise ValueError("bfsop_st needs a StrategicPolicy")
-        return BFSOP(TransformerPlanner(policy), switcher)
+        return BFSOP(TransformerPlanner(policy, **decoding), switcher)
     raise ValueError(f"unknown method {name!r}; methods are {', '.join(METHODS)}")
 
 
