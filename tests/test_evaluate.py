@@ -103,6 +103,7 @@ def test_resume_refuses_another_protocol(table1):
         ("--batch", "0", "--batch"),
         ("--settings", '{"transformer": {"beam": 4}}', "unexpected keyword argument 'beam'"),
         ("--settings", '{"planner": {}}', "unknown key 'planner'"),
+        ("--settings", '{"transformer": {"best_of": 0}}', "best_of must be a positive int"),
     ],
 )
 def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
