@@ -51,6 +51,7 @@ __all__ = [
     "SHIPPED_POLICIES",
     "TWO_OPT_ITERS",
     "StrategicPolicy",
+    "check_decoding",
 ]
 
 # The pretrained models shipped with the package (config.json + model/), by preset name.
@@ -181,8 +182,7 @@ class StrategicPolicy:
             A feasible :class:`Solution` (``nodes`` [T] or [B, T] with T = plan_length(k),
             -1 padded; reward and cost exact in float32 for the given instance).
         """
-        if not isinstance(best_of, int) or best_of < 1:
-            raise ValueError(f"best_of must be a positive int, got {best_of!r}")
+        check_decoding(best_of, multi_start)
         if not temperature > 0:
             raise ValueError(f"temperature must be positive, got {temperature}")
         starts = _starts(multi_start, self.num_sets)
@@ -413,12 +413,22 @@ def _plan_program(
     return _best(sol, candidates, b)
 
 
-def _starts(multi_start: bool | int, num_sets: int) -> int:
-    """Multi-start rollouts per instance: K for ``True``, M for an int M (K at most)."""
+def check_decoding(best_of: int, multi_start: bool | int) -> None:
+    """Raise ``ValueError`` unless ``best_of`` is a positive int and ``multi_start`` a
+    bool or a non-negative int (the options of :meth:`StrategicPolicy.plan`)."""
+    if not isinstance(best_of, int) or best_of < 1:
+        raise ValueError(f"best_of must be a positive int, got {best_of!r}")
     if isinstance(multi_start, bool | np.bool_):
-        return num_sets if multi_start else 0
+        return
     if not isinstance(multi_start, int | np.integer) or multi_start < 0:
         raise ValueError(f"multi_start must be a bool or a non-negative int, got {multi_start!r}")
+
+
+def _starts(multi_start: bool | int, num_sets: int) -> int:
+    """Multi-start rollouts per instance: K for ``True``, M for an int M (K at most)."""
+    check_decoding(1, multi_start)
+    if isinstance(multi_start, bool | np.bool_):
+        return num_sets if multi_start else 0
     return min(int(multi_start), num_sets)
 
 

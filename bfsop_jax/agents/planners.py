@@ -16,8 +16,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
+from bfsop_jax.policy import check_decoding
 from bfsop_jax.sop.callback import vns_masked_callback
 from bfsop_jax.sop.types import Solution, SOPInstance, plan_length
 from bfsop_jax.sop.vns import REFERENCE, VNSConfig
@@ -114,11 +114,7 @@ class TransformerPlanner:
     name: str = "transformer"
 
     def __post_init__(self) -> None:
-        if isinstance(self.best_of, bool) or not isinstance(self.best_of, int) or self.best_of < 1:
-            raise ValueError(f"best_of must be a positive int, got {self.best_of!r}")
-        ms = self.multi_start
-        if not isinstance(ms, bool | np.bool_ | int | np.integer) or ms < 0:
-            raise ValueError(f"multi_start must be a bool or a non-negative int, got {ms!r}")
+        check_decoding(self.best_of, self.multi_start)
 
     def __call__(self, mask: jax.Array, instance: SOPInstance) -> Solution:
         return self.policy.plan_traced(
