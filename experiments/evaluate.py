@@ -130,11 +130,11 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
     try:
         checked["settings"] = json.loads(args.settings) if args.settings else {}
         for name, fields in checked["settings"].items():
-            if name not in ("bfs_global", "tfl_reactive", "bfsop", "transformer"):
+            if name not in ("bfs_global", "tfl_reactive", "bfsop", "transformer", "explorer"):
                 raise ValueError(
-                    f"unknown key {name!r} (bfs_global, tfl_reactive, bfsop, transformer)"
+                    f"unknown key {name!r} (bfs_global, tfl_reactive, bfsop, transformer, explorer)"
                 )
-            base = name in ("bfsop", "transformer")
+            base = name in ("bfsop", "transformer", "explorer")
             nav.make_strategy("fbe" if base else name, None, {name: fields})
     except (json.JSONDecodeError, TypeError, ValueError) as err:
         _fail(f"--settings: {err}")

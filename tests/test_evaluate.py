@@ -104,6 +104,7 @@ def test_resume_refuses_another_protocol(table1):
         ("--settings", '{"transformer": {"beam": 4}}', "unexpected keyword argument 'beam'"),
         ("--settings", '{"planner": {}}', "unknown key 'planner'"),
         ("--settings", '{"transformer": {"best_of": 0}}', "best_of must be a positive int"),
+        ("--settings", '{"explorer": {"gain": 4}}', "unexpected keyword argument 'gain'"),
     ],
 )
 def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
@@ -169,3 +170,21 @@ def test_transformer_settings_reach_the_planner():
     assert planner.policy is policy and strategy.config.walk_limit == 3.0
     plain = make_strategy("bfsop_st", policy).planner
     assert (plain.multi_start, plain.best_of, plain.fill) == (False, 1, False)
+
+
+@pytest.mark.parametrize("method", ["fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st"])
+def test_explorer_settings_reach_every_method(method):
+    """``{"explorer": {...}}`` sets the frontier explorer of whichever method runs."""
+    from bfsop_jax.agents.bfsop import EXPLORER
+    from bfsop_jax.eval.navigation import make_strategy
+
+    def explorer(settings):
+        strategy = make_strategy(method, object(), settings)
+        return (strategy if method == "fbe" else strategy.explorer).config
+
+    own = EXPLORER.gain_weight_m if method.startswith("bfsop") else 0.0
+    assert explorer(None).gain_weight_m == own  # the baselines: nearest frontier first
+    kept = explorer({"explorer": {"patience": 3}})  # overrides go on top of the method's own
+    assert (kept.gain_weight_m, kept.patience) == (own, 3)
+    got = explorer({"explorer": {"gain_weight_m": 4.0, "patience": 3}})
+    assert (got.gain_weight_m, got.patience) == (4.0, 3)

@@ -17,7 +17,9 @@ from bfsop_jax.navigation import (
     frontier_cells,
     frontier_clusters,
     nearest_frontier,
+    plan_cell_states,
     planning_blocked,
+    unknown_count,
     xy_to_plan_cell,
 )
 
@@ -100,6 +102,46 @@ def test_unreachable_frontier_is_not_chosen():
     fr = _clusters(b, PRESET)
     index, dist = nearest_frontier(fr, jnp.full(PRESET.plan_shape, jnp.inf), PRESET)
     assert int(index) == -1 and np.isinf(float(dist))
+
+
+def pocket_and_door_room() -> tuple[np.ndarray, np.ndarray]:
+    """The one-door room with a small unknown pocket (0.6 m square) near the agent, more
+    than 2 m from every wall (the unknown space outside the room is out of its reach)."""
+    b = one_door_room()
+    b[50:56, 56:62] = 0.0  # unseen floor behind, say, a chair
+    return b, np.array([5.0, 5.3], np.float32)
+
+
+def test_unknown_count_matches_a_box_sum():
+    b, _ = pocket_and_door_room()
+    _, unknown = plan_cell_states(b, PRESET)
+    unknown = np.asarray(unknown)
+    cells = np.array([[26, 29], [22, 49], [0, 0], [5, 77]], np.int32)
+    got = np.asarray(unknown_count(unknown, cells, 4))
+    hp, wp = unknown.shape
+    for (r, c), n in zip(cells, got, strict=True):
+        box = unknown[max(r - 4, 0) : min(r + 5, hp), max(c - 4, 0) : min(c + 5, wp)]
+        assert n == box.sum()  # cells beyond the map edge do not count
+    assert got[0] == 9 and got[1] > 20  # the pocket's 3 x 3 cells; the open door
+
+
+def test_gain_bonus_prefers_the_door_to_a_nearer_pocket():
+    b, agent = pocket_and_door_room()
+    fr = _clusters(b, PRESET)
+    field = distance_field(planning_blocked(b, PRESET), agent, PRESET)
+    xy = np.asarray(fr.xy)
+    door = int(np.argmax(np.where(np.asarray(fr.valid), xy[:, 0], -1.0)))
+    nearest, _ = nearest_frontier(fr, field, PRESET)
+    assert int(nearest) != door  # the pocket is nearer
+    _, unknown = plan_cell_states(b, PRESET)
+    count = unknown_count(unknown, xy_to_plan_cell(fr.xy, PRESET), 10)
+    bonus = count.astype(jnp.float32) * np.float32(20.0 / 21**2)
+    index, dist = nearest_frontier(fr, field, PRESET, bonus)
+    assert int(index) == door
+    cell = np.asarray(xy_to_plan_cell(xy[door], PRESET))
+    assert float(dist) == float(np.asarray(field)[cell[0], cell[1]])  # still the geodesic
+    small, _ = nearest_frontier(fr, field, PRESET, bonus * np.float32(0.01))
+    assert int(small) == int(nearest)  # a weak bonus does not outweigh the distance
 
 
 def reference_clusters(mask: np.ndarray, min_size: int):

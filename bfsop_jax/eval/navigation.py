@@ -51,6 +51,7 @@ from bfsop_jax.agents import (
     BFSGlobal,
     BFSGlobalConfig,
     BFSOPConfig,
+    FBEConfig,
     TFLReactive,
     TFLReactiveConfig,
     TransformerPlanner,
@@ -182,27 +183,36 @@ def make_strategy(
     """The strategy behind a method name.
 
     ``settings`` override config fields: ``{"bfs_global": {...}, "tfl_reactive": {...},
-    "bfsop": {...}, "transformer": {...}}`` (``"bfsop"``: the switcher of both BF-SOP
-    variants; ``"transformer"``: the decoding options of :class:`TransformerPlanner`,
-    e.g. ``{"multi_start": 8, "best_of": 4, "fill": true}``).
+    "bfsop": {...}, "transformer": {...}, "explorer": {...}}`` (``"bfsop"``: the switcher
+    of both BF-SOP variants; ``"transformer"``: the decoding options of
+    :class:`TransformerPlanner`, e.g. ``{"multi_start": 8, "best_of": 4, "fill": true}``;
+    ``"explorer"``: fields of the :class:`FBEConfig` of whichever method runs, on top of
+    its own: the baselines explore nearest-frontier first, BF-SOP weighs frontiers by the
+    unknown space around them, ``gain_weight_m``).
     """
     settings = settings or {}
     switcher = BFSOPConfig(**settings.get("bfsop", {}))
     decoding = settings.get("transformer", {})
     TransformerPlanner(None, **decoding)  # unknown options fail here, whatever the method
+    explore = settings.get("explorer", {})
+    dataclasses.replace(FBEConfig(), **explore)  # unknown fields fail here, whatever the method
     if name == "fbe":
-        return FBE()
+        return FBE(dataclasses.replace(FBE().config, **explore))
     if name == "bfs_global":
-        return BFSGlobal(BFSGlobalConfig(**settings.get(name, {})))
-    if name == "tfl_reactive":
-        return TFLReactive(TFLReactiveConfig(**settings.get(name, {})))
-    if name == "bfsop_vns":
-        return BFSOP(VNSPlanner(seed=0), switcher)
-    if name == "bfsop_st":
+        strategy = BFSGlobal(BFSGlobalConfig(**settings.get(name, {})))
+    elif name == "tfl_reactive":
+        strategy = TFLReactive(TFLReactiveConfig(**settings.get(name, {})))
+    elif name == "bfsop_vns":
+        strategy = BFSOP(VNSPlanner(seed=0), switcher)
+    elif name == "bfsop_st":
         if policy is None:
             raise ValueError("bfsop_st needs a StrategicPolicy")
-        return BFSOP(TransformerPlanner(policy, **decoding), switcher)
-    raise ValueError(f"unknown method {name!r}; methods are {', '.join(METHODS)}")
+        strategy = BFSOP(TransformerPlanner(policy, **decoding), switcher)
+    else:
+        raise ValueError(f"unknown method {name!r}; methods are {', '.join(METHODS)}")
+    # the overrides apply on top of the method's own explorer (BF-SOP's weighs gain)
+    explorer = FBE(dataclasses.replace(strategy.explorer.config, **explore))
+    return dataclasses.replace(strategy, explorer=explorer)
 
 
 def describe_strategy(strategy: Any) -> str:

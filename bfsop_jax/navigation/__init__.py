@@ -16,6 +16,7 @@ from bfsop_jax.navigation.frontiers import (
     frontier_mask,
     nearest_frontier,
     plan_cell_states,
+    unknown_count,
     unknown_side,
 )
 from bfsop_jax.navigation.grid import (
@@ -45,6 +46,7 @@ __all__ = [
     "nearest_frontier",
     "next_cell",
     "plan_cell_states",
+    "unknown_count",
     "unknown_side",
     "distance_field",
     "distance_fields",

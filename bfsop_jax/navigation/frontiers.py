@@ -35,6 +35,7 @@ __all__ = [
     "frontier_cells",
     "frontier_clusters",
     "frontier_mask",
+    "unknown_count",
     "nearest_frontier",
     "plan_cell_states",
     "unknown_side",
@@ -106,13 +107,32 @@ def unknown_side(unknown: jax.Array, cells: jax.Array, radius: int) -> jax.Array
     ``radius`` (Chebyshev) of the cell; (0, 0) when there are none or they balance out.
     Integer arithmetic, so a look direction built from it is exact.
     """
+    unk, off = _unknown_around(unknown, cells, radius)
+    return jnp.sum(jnp.where(unk[..., None], off, 0), axis=-2).astype(jnp.int32)
+
+
+def unknown_count(unknown: jax.Array, cells: jax.Array, radius: int) -> jax.Array:
+    """Unknown planning cells within ``radius`` (Chebyshev) of each cell.
+
+    ``unknown`` [Hp, Wp] bool, ``cells`` [..., 2] int32 -> [...] int32 (cells beyond the
+    map edge do not count): how much unseen space a look from there could resolve.
+    """
+    unk, _ = _unknown_around(unknown, cells, radius)
+    return jnp.sum(unk, axis=-1, dtype=jnp.int32)
+
+
+def _unknown_around(
+    unknown: jax.Array, cells: jax.Array, radius: int
+) -> tuple[jax.Array, np.ndarray]:
+    """bool [..., O]: which of the (2 radius + 1)^2 cells around each cell are unknown
+    (beyond the map edge: not), with the int32 [O, 2] (drow, dcol) offsets."""
     hp, wp = unknown.shape
     r = np.arange(-radius, radius + 1, dtype=np.int32)
     off = np.stack(np.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)  # [O, 2]
     nb = jnp.asarray(cells, jnp.int32)[..., None, :] + off
     inside = (nb[..., 0] >= 0) & (nb[..., 0] < hp) & (nb[..., 1] >= 0) & (nb[..., 1] < wp)
     unk = inside & unknown[jnp.clip(nb[..., 0], 0, hp - 1), jnp.clip(nb[..., 1], 0, wp - 1)]
-    return jnp.sum(jnp.where(unk[..., None], off, 0), axis=-2).astype(jnp.int32)
+    return unk, off
 
 
 def _component_labels(cells: jax.Array) -> jax.Array:
@@ -198,17 +218,23 @@ def frontier_clusters(belief: jax.Array, preset: Preset) -> Frontiers:
 
 
 def nearest_frontier(
-    frontiers: Frontiers, field_from_agent: jax.Array, preset: Preset
+    frontiers: Frontiers,
+    field_from_agent: jax.Array,
+    preset: Preset,
+    bonus: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """The geodesically nearest frontier: ``(index int32, distance float32 metres)``.
 
-    ``field_from_agent`` is the [Hp, Wp] distance field from the agent. Returns
-    ``(-1, inf)`` when no valid frontier is reachable.
+    ``field_from_agent`` is the [Hp, Wp] distance field from the agent. With ``bonus``
+    (float32 [F] metres) the choice minimises distance minus bonus instead; the distance
+    returned is still the geodesic one. Returns ``(-1, inf)`` when no valid frontier is
+    reachable.
     """
     preset = require_preset(preset)
     cell = xy_to_plan_cell(frontiers.xy, preset)
     d = jnp.where(frontiers.valid, field_from_agent[cell[:, 0], cell[:, 1]], jnp.inf)
-    k = jnp.argmin(d).astype(jnp.int32)
+    score = d if bonus is None else d - jax.lax.optimization_barrier(bonus)
+    k = jnp.argmin(score).astype(jnp.int32)
     dist = d[k]
     found = jnp.isfinite(dist)
     return jnp.where(found, k, -1), jnp.where(found, dist, np.float32(np.inf))
