@@ -216,8 +216,12 @@ def make_strategy(
 
 
 def describe_strategy(strategy: Any) -> str:
-    """A stable text of a strategy's class, configuration and planner (not its weights)."""
+    """A stable text of a strategy's class, configuration, explorer and planner (not its
+    weights)."""
     parts = [type(strategy).__name__, repr(getattr(strategy, "config", None))]
+    explorer = getattr(strategy, "explorer", None)
+    if explorer is not None:
+        parts.append(repr(explorer.config))
     planner = getattr(strategy, "planner", None)
     if planner is not None:
         fields = {f.name: getattr(planner, f.name) for f in dataclasses.fields(planner)}
