@@ -195,9 +195,8 @@ def make_strategy(
     decoding = settings.get("transformer", {})
     TransformerPlanner(None, **decoding)  # unknown options fail here, whatever the method
     explore = settings.get("explorer", {})
-    dataclasses.replace(FBEConfig(), **explore)  # unknown fields fail here, whatever the method
     if name == "fbe":
-        return FBE(dataclasses.replace(FBE().config, **explore))
+        return FBE(FBEConfig(**explore))
     if name == "bfs_global":
         strategy = BFSGlobal(BFSGlobalConfig(**settings.get(name, {})))
     elif name == "tfl_reactive":

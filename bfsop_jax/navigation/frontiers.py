@@ -35,9 +35,9 @@ __all__ = [
     "frontier_cells",
     "frontier_clusters",
     "frontier_mask",
-    "unknown_count",
     "nearest_frontier",
     "plan_cell_states",
+    "unknown_count",
     "unknown_side",
 ]
 
