@@ -63,7 +63,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help=f"held-out house seeds START:END (default {EVAL_SEED_START}:"
                     f"{EVAL_SEED_START + 10}; with --procthor-dir: file indices)")  # fmt: skip
     ap.add_argument("--categories", default="all", help="'all' or comma-separated names")
-    ap.add_argument("--methods", default=",".join(nav.METHODS))
+    ap.add_argument("--methods", default=",".join(nav.METHODS),
+                    help=f"comma-separated, from {', '.join(nav.METHODS + nav.ABLATIONS)} "
+                    "(default: the five of Table I)")  # fmt: skip
     ap.add_argument(
         "--checkpoint", default=None, help="Transformer run dir (default: the shipped demo model)"
     )
@@ -98,10 +100,10 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
     """Validate everything before anything runs; one-line errors."""
     checked: dict[str, Any] = {}
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    unknown = [m for m in methods if m not in nav.METHODS]
+    unknown = [m for m in methods if m not in nav.METHODS + nav.ABLATIONS]
     if unknown or not methods:
         _fail(f"unknown method {unknown[0] if unknown else '(none)'!r}; "
-              f"methods are {', '.join(nav.METHODS)}")  # fmt: skip
+              f"methods are {', '.join(nav.METHODS + nav.ABLATIONS)}")  # fmt: skip
     checked["methods"] = methods
     if args.scan:
         keys = {_settings_key(m) for m in methods}

@@ -76,6 +76,25 @@ def test_table1_outputs(table1):
     assert "over houses [95% CI]" in text and f"| [{hlo:+.3f}, {hhi:+.3f}] |" in text
 
 
+def test_ablation_row_is_compared_but_never_the_best_baseline(table1, tmp_path):
+    """TFL-Reactive with BF-SOP's explorer gets its own paired row, not "best baseline"."""
+    out, _ = table1
+    saved = json.loads((out / "results.json").read_text())
+    records = [r for r in saved["episodes"] if r["method"] == "bfsop_st"]
+    for r in saved["episodes"]:
+        if r["method"] == "fbe":  # stand-ins: the ablation scores above the baseline
+            records += [dict(r, method="tfl_reactive"), dict(r, method="tfl_reactive_gain",
+                                                             ppl=r["ppl"] + 0.5)]  # fmt: skip
+    names = ["tfl_reactive", "bfsop_st", "tfl_reactive_gain"]
+    result = dict(saved, episodes=records, methods=nav.summarise(records, names))
+    text = nav.write_table1(result, tmp_path / "table1.md")
+    assert "| TFL-Reactive + gain explorer | " in text
+    assert "BF-SOP (Transformer) - TFL-Reactive (best baseline)" in text
+    d, lo, hi = nav.paired(records, "bfsop_st", "tfl_reactive_gain")
+    row = f"| BF-SOP (Transformer) - TFL-Reactive + gain explorer (the same explorer) | {d:+.3f}"
+    assert row in text and "gain explorer (best baseline)" not in text
+
+
 def test_resume_reuses_finished_chunks(table1):
     out, result = table1
     chunks = sorted((out / "episodes").glob("*.json"))
@@ -105,6 +124,7 @@ def test_resume_refuses_another_protocol(table1):
         ("--settings", '{"planner": {}}', "unknown key 'planner'"),
         ("--settings", '{"transformer": {"best_of": 0}}', "best_of must be a positive int"),
         ("--settings", '{"explorer": {"gain": 4}}', "unexpected keyword argument 'gain'"),
+        ("--methods", "fbe,tfl_gain", "unknown method 'tfl_gain'; methods are fbe,"),
     ],
 )
 def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
@@ -172,7 +192,7 @@ def test_transformer_settings_reach_the_planner():
     assert (plain.multi_start, plain.best_of, plain.fill) == (False, 1, False)
 
 
-@pytest.mark.parametrize("method", ["fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st"])
+@pytest.mark.parametrize("method", [*nav.METHODS, *nav.ABLATIONS])
 def test_explorer_settings_reach_every_method(method):
     """``{"explorer": {...}}`` sets the frontier explorer of whichever method runs."""
     from bfsop_jax.agents.bfsop import EXPLORER
@@ -182,9 +202,22 @@ def test_explorer_settings_reach_every_method(method):
         strategy = make_strategy(method, object(), settings)
         return (strategy if method == "fbe" else strategy.explorer).config
 
-    own = EXPLORER.gain_weight_m if method.startswith("bfsop") else 0.0
+    own = 0.0 if method in nav.BASELINES else EXPLORER.gain_weight_m
     assert explorer(None).gain_weight_m == own  # the baselines: nearest frontier first
     kept = explorer({"explorer": {"patience": 3}})  # overrides go on top of the method's own
     assert (kept.gain_weight_m, kept.patience) == (own, 3)
     got = explorer({"explorer": {"gain_weight_m": 4.0, "patience": 3}})
     assert (got.gain_weight_m, got.patience) == (4.0, 3)
+
+
+def test_ablation_is_tfl_reactive_with_bfsop_explorer():
+    """``tfl_reactive_gain``: TFL-Reactive's own settings, BF-SOP's explorer."""
+    from bfsop_jax.agents import TFLReactive
+    from bfsop_jax.agents.bfsop import BFSOP, EXPLORER
+
+    settings = {"tfl_reactive": {"radius_m": 3.0}}
+    strategy = nav.make_strategy("tfl_reactive_gain", None, settings)
+    assert isinstance(strategy, TFLReactive) and strategy.config.radius_m == 3.0
+    assert strategy.explorer.config == EXPLORER
+    assert strategy.explorer.config == BFSOP().explorer.config
+    assert nav.make_strategy("tfl_reactive", None, settings).explorer.config != EXPLORER

@@ -59,6 +59,7 @@ from bfsop_jax.agents import (
     continue_rollout,
     max_macro_steps,
 )
+from bfsop_jax.agents.bfsop import EXPLORER
 from bfsop_jax.agents.tour import pending_landmarks
 from bfsop_jax.config import Preset
 from bfsop_jax.env import observe, reset
@@ -71,6 +72,7 @@ from bfsop_jax.world.constants import N_TARGETS, TARGET_NAMES
 from bfsop_jax.world.types import House
 
 __all__ = [
+    "ABLATIONS",
     "BASELINES",
     "LABELS",
     "METHODS",
@@ -85,12 +87,16 @@ __all__ = [
 
 METHODS: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st")
 BASELINES: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive")
+# Rows run on request only (``--methods``), never a "best baseline": TFL-Reactive with
+# BF-SOP's explorer shows how much of BF-SOP's margin is its exploration mode's.
+ABLATIONS: tuple[str, ...] = ("tfl_reactive_gain",)
 LABELS: dict[str, str] = {
     "fbe": "FBE",
     "bfs_global": "BFS-Global",
     "tfl_reactive": "TFL-Reactive",
     "bfsop_vns": "BF-SOP (VNS)",
     "bfsop_st": "BF-SOP (Transformer)",
+    "tfl_reactive_gain": "TFL-Reactive + gain explorer",
 }
 _START_SALT = 7919  # reset key = fold_in(key(house seed), _START_SALT + category)
 _SEGMENT = 32  # macro steps per jitted rollout segment (progress and early stop)
@@ -201,6 +207,8 @@ def make_strategy(
         strategy = BFSGlobal(BFSGlobalConfig(**settings.get(name, {})))
     elif name == "tfl_reactive":
         strategy = TFLReactive(TFLReactiveConfig(**settings.get(name, {})))
+    elif name == "tfl_reactive_gain":  # TFL-Reactive's settings, BF-SOP's explorer
+        strategy = TFLReactive(TFLReactiveConfig(**settings.get("tfl_reactive", {})), FBE(EXPLORER))
     elif name == "bfsop_vns":
         strategy = BFSOP(VNSPlanner(seed=0), switcher)
     elif name == "bfsop_st":
@@ -208,7 +216,7 @@ def make_strategy(
             raise ValueError("bfsop_st needs a StrategicPolicy")
         strategy = BFSOP(TransformerPlanner(policy, **decoding), switcher)
     else:
-        raise ValueError(f"unknown method {name!r}; methods are {', '.join(METHODS)}")
+        raise ValueError(f"unknown method {name!r}; methods are {', '.join(METHODS + ABLATIONS)}")
     # the overrides apply on top of the method's own explorer (BF-SOP's weighs gain)
     explorer = FBE(dataclasses.replace(strategy.explorer.config, **explore))
     return dataclasses.replace(strategy, explorer=explorer)
@@ -719,6 +727,8 @@ def write_table1(result: dict[str, Any], path: str | os.PathLike, header: str = 
     if "bfsop_vns" in methods and baselines:
         best = max(baselines, key=lambda m: methods[m]["ppl_mean"])
         comparisons.append(("bfsop_vns", best, "best baseline"))
+    if "bfsop_st" in methods and "tfl_reactive_gain" in methods:
+        comparisons.append(("bfsop_st", "tfl_reactive_gain", "the same explorer"))
     if comparisons:
         several = len({r["house_seed"] for r in episodes}) > 1
         lines += [
