@@ -221,3 +221,10 @@ def test_ablation_is_tfl_reactive_with_bfsop_explorer():
     assert strategy.explorer.config == EXPLORER
     assert strategy.explorer.config == BFSOP().explorer.config
     assert nav.make_strategy("tfl_reactive", None, settings).explorer.config != EXPLORER
+
+
+def test_a_method_keeps_its_colour_whichever_methods_ran():
+    every = nav.method_colours([*nav.METHODS, *nav.ABLATIONS])
+    assert len(set(every)) == len(every)  # the ablation row is told apart from FBE
+    some = nav.method_colours(["tfl_reactive", "bfsop_st", "tfl_reactive_gain"])
+    assert some == [every[2], every[4], every[5]]

@@ -768,7 +768,16 @@ def load_paths(out_dir: str | os.PathLike, method: str) -> list[dict[str, np.nda
     return paths
 
 
-__all__ += ["load_paths", "write_table1"]
+__all__ += ["load_paths", "method_colours", "write_table1"]
+
+
+def method_colours(names: Sequence[str]) -> list[str]:
+    """Each method's own colour (its place in :data:`METHODS` then :data:`ABLATIONS`), the
+    same in every figure whichever methods ran."""
+    from bfsop_jax.viz.style import method_colour
+
+    order = METHODS + ABLATIONS
+    return [method_colour(order.index(m)) for m in names]
 
 
 def write_figures(
@@ -783,10 +792,12 @@ def write_figures(
     names = list(methods)
     written = []
     labels = [methods[m]["label"] for m in names]
+    colours = method_colours(names)
     viz.plot_ppl(
         labels, [methods[m]["ppl_mean"] for m in names], [methods[m]["ppl_ci95"] for m in names],
         out / "ppl.png",
         title=f"PPL per method ({result['preset']}, {methods[names[0]]['episodes']} episodes)",
+        colours=colours,
     )  # fmt: skip
     written.append(out / "ppl.png")
     episodes = result["episodes"]
@@ -797,7 +808,7 @@ def write_figures(
             vals = [r["ppl"] for r in episodes if r["method"] == m and r["category"] == c]
             table[i, j] = np.mean(vals) if vals else np.nan
     viz.plot_category_ppl(cats, labels, table, out / "ppl_per_category.png",
-                          title="PPL per target category")  # fmt: skip
+                          title="PPL per target category", colours=colours)  # fmt: skip
     written.append(out / "ppl_per_category.png")
     pair = [m for m in ("tfl_reactive", "bfsop_st") if m in names]
     if len(pair) < 2:

@@ -34,18 +34,21 @@ def plot_ppl(
     intervals: ArrayLike,
     path: str | Path | None = None,
     title: str | None = None,
+    colours: Sequence[str] | None = None,
 ) -> plt.Figure:
     """Bar chart of the mean PPL per method with its 95 % interval (error bars), the value
     written in each bar.
 
-    Args: labels [n] method names, means [n], intervals [n, 2] (lo, hi).
+    Args: labels [n] method names, means [n], intervals [n, 2] (lo, hi); colours [n] (the
+    method colours in order by default), so a method keeps its colour when others are
+    missing.
     """
     means = np.asarray(means, float)
     lo_hi = np.asarray(intervals, float).reshape(-1, 2)
     fig, ax = plt.subplots(figsize=(1.3 * len(means) + 2.0, 3.6), dpi=110)
     x = np.arange(len(means))
     err = np.stack([means - lo_hi[:, 0], lo_hi[:, 1] - means])
-    colours = [method_colour(i) for i in range(len(means))]
+    colours = colours or [method_colour(i) for i in range(len(means))]
     ax.bar(x, means, color=colours, yerr=err, capsize=4, edgecolor="black", lw=0.6)
     for xi, m in zip(x, means, strict=True):
         ax.text(xi, m / 2, f"{m:.3f}", ha="center", va="center", fontsize=8, color="white")
@@ -102,20 +105,23 @@ def plot_category_ppl(
     table: ArrayLike,
     path: str | Path | None = None,
     title: str | None = None,
+    colours: Sequence[str] | None = None,
 ) -> plt.Figure:
     """Grouped bar chart of the mean PPL per target category (groups) and method (bars,
     legend on the right; a NaN entry, a method without episodes of a category, draws no bar).
 
-    Args: categories [c] names, labels [n] method names, table [n, c] mean PPL.
+    Args: categories [c] names, labels [n] method names, table [n, c] mean PPL; colours
+    [n] as in :func:`plot_ppl`.
     """
     table = np.asarray(table, float)
     n, c = table.shape
     fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * c + 2.0) + 1.8, 3.6), dpi=110)
     width = 0.8 / n
     x = np.arange(c)
+    colours = colours or [method_colour(i) for i in range(n)]
     for i in range(n):
         offset = (i - (n - 1) / 2) * width
-        ax.bar(x + offset, table[i], width, label=labels[i], color=method_colour(i), ec="black",
+        ax.bar(x + offset, table[i], width, label=labels[i], color=colours[i], ec="black",
                lw=0.4)  # fmt: skip
     style_axes(ax, legend={"fontsize": 7, "loc": "upper left", "bbox_to_anchor": (1.01, 1.0)})
     return _finish_bars(fig, ax, x, categories, "PPL (mean over houses)", title, path)
