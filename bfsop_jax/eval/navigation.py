@@ -194,7 +194,8 @@ def make_strategy(
     :class:`TransformerPlanner`, e.g. ``{"multi_start": 8, "best_of": 4, "fill": true}``;
     ``"explorer"``: fields of the :class:`FBEConfig` of whichever method runs, on top of
     its own: the baselines explore nearest-frontier first, BF-SOP weighs frontiers by the
-    unknown space around them, ``gain_weight_m``).
+    unknown space around them, ``gain_weight_m``). The ablation ``tfl_reactive_gain`` takes
+    the ``"tfl_reactive"`` settings and starts from BF-SOP's explorer.
     """
     settings = settings or {}
     switcher = BFSOPConfig(**settings.get("bfsop", {}))
