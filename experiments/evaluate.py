@@ -100,10 +100,11 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
     """Validate everything before anything runs; one-line errors."""
     checked: dict[str, Any] = {}
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    unknown = [m for m in methods if m not in nav.METHODS + nav.ABLATIONS]
+    known = nav.METHODS + nav.ABLATIONS
+    unknown = [m for m in methods if m not in known]
     if unknown or not methods:
         _fail(f"unknown method {unknown[0] if unknown else '(none)'!r}; "
-              f"methods are {', '.join(nav.METHODS + nav.ABLATIONS)}")  # fmt: skip
+              f"methods are {', '.join(known)}")  # fmt: skip
     checked["methods"] = methods
     if args.scan:
         keys = {_settings_key(m) for m in methods}
