@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -15,15 +16,25 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 # either of the two xdist workers. JAX's persistent compilation cache, shared by the
 # workers (and by the experiments the tests start as subprocesses), compiles each one
 # that takes 0.5 s or more once (docs/benchmarks.md, "The test suite").
-# Set JAX_COMPILATION_CACHE_DIR to choose the folder; the default lives in the system's
-# temporary folder, one per user id (a name from getpass.getuser() would fail for a
-# container user without a passwd entry).
-_USER = os.getuid() if hasattr(os, "getuid") else "user"
-os.environ.setdefault(
-    "JAX_COMPILATION_CACHE_DIR",
-    str(Path(tempfile.gettempdir()) / f"bfsop-jax-test-xla-cache-{_USER}"),
-)
+# - The folder is new for every test session (made here, in the process that starts the
+#   workers, which inherit the variable) and removed at its end: an entry left half
+#   written by a killed run, or by another checkout, is never read (XLA aborts the
+#   process on an executable it cannot deserialize).
+# - A size limit turns on JAX's file lock around every cache read and write, so one
+#   worker never reads a file the other is still writing.
+# Set JAX_COMPILATION_CACHE_DIR to keep a folder of your own between runs instead.
+_OWN_CACHE_DIR: str | None = None
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _OWN_CACHE_DIR = tempfile.mkdtemp(prefix="bfsop-jax-test-xla-cache-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _OWN_CACHE_DIR
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(16 << 30))
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """Remove this session's compilation cache (in the process that made it)."""
+    if _OWN_CACHE_DIR is not None and not hasattr(config, "workerinput"):
+        shutil.rmtree(_OWN_CACHE_DIR, ignore_errors=True)
 
 
 def shared_path(*parts: str) -> Path:
