@@ -216,17 +216,18 @@ def test_instance_with_parts_splits_a_long_landmark():
 
 
 
-def _partial_pending(strategy, cases, found_at_least: int) -> tuple[int, int]:
+def _partial_pending(strategy, cases, found_at_least: int) -> tuple[int, int, int]:
     """Step the episodes ``cases`` ((house seed, category) pairs); after each ``act``
-    count the pending landmarks seen in part, over the steps with at least
-    ``found_at_least`` targets verified (and over all steps)."""
+    count the pending landmarks seen in part, other than one on its way to a completion
+    viewpoint, over the steps with at least ``found_at_least`` targets verified (and over
+    all steps); and the steps, with that many verified, that walk to a completion."""
     from bfsop_jax.agents.tour import pending_landmarks
     from bfsop_jax.env import observe, step
 
     act = jax.jit(strategy.act, static_argnums=2)
     env_step = jax.jit(step, static_argnums=2)
     update = jax.jit(strategy.update)
-    late = anywhere = 0
+    late = anywhere = completing = 0
     for seed, category in cases:
         key = jax.random.key(seed)
         state = reset(key, generate_house(key, SMOKE), category, SMOKE, PRIOR, BUDGET)
@@ -234,26 +235,38 @@ def _partial_pending(strategy, cases, found_at_least: int) -> tuple[int, int]:
         for _ in range(STEPS):
             obs = observe(state)
             action, decision, memory = act(memory, obs, SMOKE)
-            pending = np.asarray(pending_landmarks(obs, memory.tour.retired))
-            partial = int((pending & np.asarray(memory.tour.covered).any(-1)).sum())
+            tour = memory.tour
+            pending = np.array(pending_landmarks(obs, tour.retired))
+            if bool(tour.extra):
+                pending[int(tour.extra_landmark)] = False
+            partial = int((pending & np.asarray(tour.covered).any(-1)).sum())
             anywhere += partial
-            late += partial if int(np.asarray(obs.found).sum()) >= found_at_least else 0
+            if int(np.asarray(obs.found).sum()) >= found_at_least:
+                late += partial
+                completing += int(bool(tour.extra))
             if not bool(decision.has_goal) or bool(state.done):
                 break
             state, info = env_step(state, action, SMOKE)
             memory = update(memory, obs, observe(state), info)
-    return late, anywhere
+    return late, anywhere, completing
 
 
 def test_plentiful_after_retires_landmarks_seen_in_part():
     """``plentiful_after=k``: once k targets are verified no landmark seen in part stays
-    pending; without it some do on the same episodes (so the check can fail)."""
+    pending (but one on its way to a completion viewpoint, with ``complete_plentiful``);
+    without it some do on the same episodes (so the check can fail)."""
     cases = [(1000001, 4), (1000000, 7)]  # smoke episodes that verify 3 targets each
     base = dict(cover=True, complete=False, tour_horizon_m=8.0, parts=False,
                 best_rate_prefix=False)  # fmt: skip
     plain = BFSOP(NearestNeighbourPlanner(), BFSOPConfig(plentiful_after=0, **base))
-    late, _ = _partial_pending(plain, cases, 1)
+    late, _, _ = _partial_pending(plain, cases, 1)
     assert late > 0, "no landmark seen in part after a find: the test would be vacuous"
-    strategy = BFSOP(NearestNeighbourPlanner(), BFSOPConfig(plentiful_after=1, **base))
-    late, anywhere = _partial_pending(strategy, cases, 1)
-    assert late == 0 and anywhere > 0
+    config = BFSOPConfig(plentiful_after=1, complete_plentiful=False, **base)
+    strategy = BFSOP(NearestNeighbourPlanner(), config)
+    late, anywhere, completing = _partial_pending(strategy, cases, 1)
+    assert late == 0 and anywhere > 0 and completing == 0
+    # complete_plentiful (the default): a visit seen in part once the category is plentiful
+    # goes on to a completion viewpoint first; the landmark is retired once that walk ends
+    config = BFSOPConfig(plentiful_after=1, **base)
+    late, _, completing = _partial_pending(BFSOP(NearestNeighbourPlanner(), config), cases, 1)
+    assert late == 0 and completing > 0

@@ -21,7 +21,9 @@ teacher through its host callback, or the Strategic Transformer) computes the to
 executed as :mod:`bfsop_jax.agents.tour` describes: by default only its prefix with the
 best reward per metre (``best_rate_prefix``), with landmark coverage (``cover``) and the
 thirds of long landmarks as SOP sets (``parts``) until ``plentiful_after`` (2) targets
-are verified, then one visit per whole landmark; a tour ends once the walk to a viewpoint
+are verified, then one visit per whole landmark, a visit that sees it in part going on at
+once to a viewpoint within 3 m that sees more (``complete_plentiful``); a tour ends once
+the walk to a viewpoint
 outgrows twice its planned leg plus 1 m (``walk_limit``: the plan priced it on the
 optimistic map, and a wall seen on the way can make it much longer).
 
@@ -110,6 +112,11 @@ class BFSOPConfig:
     # this house), a landmark seen in part is retired, not gone back to: many targets
     # reward visiting many landmarks once more than covering a few; 0 = never
     plentiful_after: int = 2
+    # with plentiful_after: once the category is plentiful, a visit that leaves its
+    # landmark seen in part goes straight on to the nearest viewpoint that sees more of it
+    # (within 3 m), before the landmark is retired (it is not gone back to later, so what
+    # the first viewpoint missed is cheapest to see now); False: retired at once
+    complete_plentiful: bool = True
     # > 0: tour only when a pending landmark lies within this many metres of the agent
     # (straight line to its centre), after ``timer_m`` metres explored with landmarks
     # pending, or when the budget or the landmark cap presses (a reactive trigger; the SOP

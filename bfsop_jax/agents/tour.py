@@ -150,14 +150,16 @@ def _empty_plan(preset: Preset) -> tuple[SOPInstance, Solution, jax.Array, jax.A
 
 
 def _fold_arrival(
-    tour: TourMemory, obs: Observation, preset: Preset, complete: bool = True
+    tour: TourMemory, obs: Observation, preset: Preset, complete: bool | jax.Array = True
 ) -> TourMemory:
     """Mark the coverage points seen from the viewpoint just reached (``tour.arrived_at``).
 
-    The landmark is retired when all are seen or the visit saw nothing new; otherwise the
-    nearest viewpoint that sees an unseen point becomes the next goal (``tour.extra``), so a
-    large landmark is covered in one visit, side after side, before the tour goes on.
+    The landmark is retired when all are seen or the visit saw nothing new; otherwise, with
+    ``complete`` (bool, or a bool [] array), the nearest viewpoint that sees an unseen point
+    becomes the next goal (``tour.extra``), so a large landmark is covered in one visit,
+    side after side, before the tour goes on.
     """
+    complete = jnp.asarray(complete, bool)
     lm = tour.arrived_at
     arrived = lm >= 0
     slot = jnp.maximum(lm, 0)
@@ -167,7 +169,7 @@ def _fold_arrival(
     after = before | seen
     done = arrived & (jnp.all(after) | ~jnp.any(seen & ~before))
     ok, goal, look, metres = sparse_cond(
-        arrived & ~done & np.bool_(complete),
+        arrived & ~done & complete,
         lambda _, obs, c, h, a: completion_viewpoint(obs.belief, obs.pose[:2], c, h, a, preset),
         lambda *_: (
             jnp.zeros((), bool), jnp.zeros(2, jnp.float32), jnp.zeros(2, jnp.float32),
@@ -179,7 +181,7 @@ def _fold_arrival(
     extra = arrived & ~done & ok
     return tour.replace(
         covered=tour.covered.at[slot].set(jnp.where(arrived, after, before)),
-        retired=tour.retired.at[slot].max(done | (arrived & ~ok & np.bool_(complete))),
+        retired=tour.retired.at[slot].max(done | (arrived & ~ok & complete)),
         arrived_at=jnp.full((), -1, jnp.int32),
         touring=tour.touring | extra,
         extra=tour.extra | extra,
@@ -256,6 +258,13 @@ class TourStrategy:
     def completes(self) -> bool:
         """With coverage: whether a visit seen in part goes on to a completion viewpoint."""
         return bool(getattr(self.config, "complete", True))
+
+    @property
+    def completes_plentiful(self) -> bool:
+        """With coverage and ``plentiful_after``: whether, once the category is plentiful, a
+        visit seen in part goes on to a completion viewpoint (within ``COMPLETE_MAX_M``)
+        before the landmark is retired."""
+        return bool(getattr(self.config, "complete_plentiful", False))
 
     @property
     def plentiful_after(self) -> int:
@@ -340,12 +349,19 @@ class TourStrategy:
     ) -> tuple[Action, Decision, SwitchMemory]:
         tour = memory.tour
         if self.covers:
-            tour = _fold_arrival(tour, obs, preset, self.completes)
+            plentiful = self._plentiful(obs)
+            complete = self.completes
+            if self.completes_plentiful:
+                complete = complete | plentiful
+            tour = _fold_arrival(tour, obs, preset, complete)
             if self.plentiful_after > 0:
                 # the category is plentiful here: breadth over depth, so a landmark seen
-                # (in part) on a visit is not gone back to, and sets are whole landmarks
-                plentiful = self._plentiful(obs)
-                tour = tour.replace(retired=tour.retired | (plentiful & tour.covered.any(-1)))
+                # (in part) on a visit is not gone back to (beyond a completion viewpoint
+                # on the spot, with ``complete_plentiful``), and sets are whole landmarks
+                slots = jnp.arange(tour.retired.shape[0])
+                completing = tour.extra & (slots == tour.extra_landmark)
+                seen = tour.covered.any(-1) & ~completing
+                tour = tour.replace(retired=tour.retired | (plentiful & seen))
             tour = _skip_retired(tour)
         explore_action, has_frontier, explore_memory = self.explorer.explore(
             memory.explore, obs, preset
