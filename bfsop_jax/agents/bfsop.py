@@ -23,9 +23,8 @@ best reward per metre (``best_rate_prefix``), with landmark coverage (``cover``)
 thirds of long landmarks as SOP sets (``parts``) until ``plentiful_after`` (2) targets
 are verified, then one visit per whole landmark, a visit that sees it in part going on at
 once to a viewpoint within 3 m that sees more (``complete_plentiful``); a tour ends once
-the walk to a viewpoint
-outgrows twice its planned leg plus 1 m (``walk_limit``: the plan priced it on the
-optimistic map, and a wall seen on the way can make it much longer).
+the walk to a viewpoint outgrows twice its planned leg plus 1 m (``walk_limit``: the plan
+priced it on the optimistic map, and a wall seen on the way can make it much longer).
 
 Exact arithmetic: the estimate's distances come from whole 1/64 m coordinates and the
 yield from whole 2^-16 reward units with an explicit rounding per operation, so the
