@@ -11,8 +11,9 @@ reference with a 95% bootstrap interval over houses (whole houses resampled), th
 and the mean PPL by the episode's instance count (1-2, 3-5, 6-10, 11+); for runs that
 record them, where the unverified targets are (on a receptacle the agent detected, on one
 it never detected, on the floor) and the share of metres toured. ``--png`` also draws the
-by-count means as grouped bars, and beside it (``<name>_targets.png``) where the targets
-are as stacked bars, for runs that record it (atomic writes).
+by-count means as grouped bars (each method in its Table I colour), and beside it
+(``<name>_targets.png``) where the targets are as stacked bars, for runs that record it
+(atomic writes).
 """
 
 from __future__ import annotations
@@ -179,18 +180,35 @@ def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
     ]
 
 
-def plot(by_bin: np.ndarray, labels: list[str], counts: list[str], path: str) -> None:
-    """Grouped bars of mean PPL per instance-count bin, one bar per method."""
+def run_colours(specs: list[str]) -> list[str]:
+    """One colour per run: each method's own (as in ``ppl.png``) when the runs name distinct
+    known methods, else by position (two runs of one method, say)."""
+    from bfsop_jax.eval.navigation import ABLATIONS, METHODS, method_colours
+    from bfsop_jax.viz.style import method_colour
+
+    methods = [spec.split("+")[0].rpartition(":")[2] for spec in specs]
+    if len(set(methods)) == len(methods) and set(methods) <= set(METHODS + ABLATIONS):
+        return method_colours(methods)
+    return [method_colour(i) for i in range(len(specs))]
+
+
+def plot(
+    by_bin: np.ndarray, labels: list[str], counts: list[str], path: str,
+    colours: list[str] | None = None,
+) -> None:  # fmt: skip
+    """Grouped bars of mean PPL per instance-count bin, one bar per method (``colours``:
+    one per method, default by position)."""
     import matplotlib.pyplot as plt
 
     from bfsop_jax.viz.style import method_colour, save
 
     m, b = by_bin.shape
+    colours = colours or [method_colour(i) for i in range(m)]
     width = 0.8 / m
     fig, ax = plt.subplots(figsize=(3.6 + 1.5 * b, 3.4))
     for i in range(m):
         x = np.arange(b) + (i - (m - 1) / 2) * width
-        ax.bar(x, by_bin[i], width, label=labels[i], color=method_colour(i))
+        ax.bar(x, by_bin[i], width, label=labels[i], color=colours[i])
     ax.set_xticks(np.arange(b), counts)
     ax.set_xlabel("instances of the target category in the house (episodes)")
     ax.set_ylabel("mean PPL")
@@ -218,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(text)
     if args.png:
-        plot(by_bin, labels, names, args.png)
+        plot(by_bin, labels, names, args.png, run_colours(args.runs))
         print(f"wrote {args.png}")
         means = account_means(runs, keys, labels)
         if means:
