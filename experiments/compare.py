@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -131,11 +132,12 @@ def plot_targets(means: dict[str, np.ndarray], path: str) -> None:
              "on the floor")  # fmt: skip
     colours = ("#2e7d32", "#f9a825", "#c62828", "#9e9e9e")
     labels = list(means)
+    ticks = [textwrap.fill(label, 22) for label in labels]  # long labels on several lines
     fig, ax = plt.subplots(figsize=(3.2 + 1.6 * len(labels), 3.4))
     bottom = np.zeros(len(labels))
     for j, (name, colour) in enumerate(zip(parts, colours, strict=True)):
         v = np.array([means[m][j] for m in labels])
-        ax.bar(labels, v, 0.6, bottom=bottom, label=name, color=colour)
+        ax.bar(ticks, v, 0.6, bottom=bottom, label=name, color=colour)
         bottom += v
     ax.set_ylabel("targets per episode (mean)")
     ax.tick_params(axis="x", labelsize=8)
@@ -181,15 +183,23 @@ def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
 
 
 def run_colours(specs: list[str]) -> list[str]:
-    """One colour per run: each method's own (as in ``ppl.png``) when the runs name distinct
-    known methods, else by position (two runs of one method, say)."""
+    """One colour per run: each method's own (as in ``ppl.png``); a method's second and
+    later runs (two settings of one strategy, say) in ever lighter shades of it; runs of
+    unknown methods by position."""
+    from matplotlib.colors import to_hex, to_rgb
+
     from bfsop_jax.eval.navigation import ABLATIONS, METHODS, method_colours
     from bfsop_jax.viz.style import method_colour
 
     methods = [spec.split("+")[0].rpartition(":")[2] for spec in specs]
-    if len(set(methods)) == len(methods) and set(methods) <= set(METHODS + ABLATIONS):
-        return method_colours(methods)
-    return [method_colour(i) for i in range(len(specs))]
+    if not set(methods) <= set(METHODS + ABLATIONS):
+        return [method_colour(i) for i in range(len(specs))]
+    out = []
+    for i, (method, base) in enumerate(zip(methods, method_colours(methods), strict=True)):
+        k = methods[:i].count(method)  # earlier runs of this method
+        mix = 1.0 - 0.55 ** k  # 0, 0.45, 0.70, ... of the way to white
+        out.append(to_hex([c + (1.0 - c) * mix for c in to_rgb(base)]))
+    return out
 
 
 def plot(

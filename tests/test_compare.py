@@ -35,14 +35,15 @@ def test_compare_pairs_shared_episodes_and_bins_by_count(tmp_path, capsys):
     assert compare.main([f"{a}:tfl_reactive", f"{b}:bfsop_st", "--png", str(png)]) == 0
     assert png.stat().st_size > 0
     capsys.readouterr()
-    # each method keeps its Table I colour; two runs of one method are told apart by position
+    # each method keeps its Table I colour; a second run of one method gets a lighter shade
     from bfsop_jax.eval.navigation import method_colours
     from bfsop_jax.viz.style import method_colour
 
     assert compare.run_colours([f"{b}:bfsop_st", f"{a}:tfl_reactive"]) == method_colours(
         ["bfsop_st", "tfl_reactive"])  # fmt: skip
-    assert compare.run_colours([f"{a}:bfsop_st", f"{b}:bfsop_st"]) == [
-        method_colour(0), method_colour(1)]  # fmt: skip
+    first, second = compare.run_colours([f"{a}:bfsop_st", f"{b}:bfsop_st"])
+    assert first == method_colours(["bfsop_st"])[0] and second not in (first, "#ffffff")
+    assert compare.run_colours([f"{a}:x", f"{b}:y"]) == [method_colour(0), method_colour(1)]
 
 
 def test_compare_accounts_for_the_unverified_targets(tmp_path):
