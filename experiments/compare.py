@@ -11,9 +11,9 @@ reference with a 95% bootstrap interval over houses (whole houses resampled), th
 and the mean PPL by the episode's instance count (1-2, 3-5, 6-10, 11+); for runs that
 record them, where the unverified targets are (on a receptacle the agent detected, on one
 it never detected, on the floor) and the share of metres toured. ``--png`` also draws the
-by-count means as grouped bars (each method in its Table I colour), and beside it
-(``<name>_targets.png``) where the targets are as stacked bars, for runs that record it
-(atomic writes).
+by-count means as grouped bars (each method in its Table I colour, its later runs in
+lighter shades), and beside it (``<name>_targets.png``) where the targets are as stacked
+bars, for runs that record it (atomic writes).
 """
 
 from __future__ import annotations
