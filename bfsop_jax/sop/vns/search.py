@@ -302,6 +302,9 @@ def _recreate(
     ``rows`` of them), refills each tour greedily without the removed sets, polishes it
     with both local searches and returns the best result (permutation, m, reward, cost).
     """
+    if m == 0:  # nothing visited, nothing to ruin: the incumbent as it is
+        rew, cost = _score(view, perm[None], np.array([m]))
+        return perm, m, float(rew[0]), float(cost[0])
     ruins = [(i,) for i in range(m)] + [(i, j) for i in range(m) for j in range(i + 1, m)]
     if len(ruins) > rows:
         ruins = [ruins[i] for i in np.sort(rng.choice(len(ruins), rows, replace=False))]
