@@ -221,12 +221,12 @@ def test_bfsop_replan_replaces_tours_under_way():
     """``BFSOPConfig(replan=True)``: the two variants agree until the first step where
     only the re-planning one calls its planner, and there the default one is touring (a
     tour under way, which the default runs to its end)."""
-    states = _states((1000000, 1000001, 1000002))
+    states = _states((1000000, 1000001))
     _, plain = _batched(BFSOP_NN)(states)
     _, again = _batched(BFSOP(NearestNeighbourPlanner(), BFSOPConfig(replan=True)))(states)
     p_plan, a_plan = np.asarray(plain.planned), np.asarray(again.planned)
     seen = 0
-    for b in range(3):
+    for b in range(len(p_plan)):  # the batch of the other tests: one compiled plain rollout
         differ = np.flatnonzero(p_plan[b] != a_plan[b])
         if differ.size == 0:
             continue
