@@ -30,6 +30,7 @@ from bfsop_jax.agents.sparse import sparse_cond
 from bfsop_jax.agents.tour import pending_landmarks
 from bfsop_jax.config import get_preset
 from bfsop_jax.env import Action, observe, reset, step
+from bfsop_jax.navigation.distance import METHOD_ENV, geodesic_method
 from bfsop_jax.sop.types import SOPInstance
 from bfsop_jax.world import generate_house
 from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS
@@ -163,6 +164,22 @@ def test_tour_strategies_are_batch_invariant():
             _, alone = single(_one(states, i))
             np.testing.assert_array_equal(np.asarray(alone.poses), np.asarray(batched.poses[i]))
             np.testing.assert_array_equal(np.asarray(alone.touring), np.asarray(batched.touring[i]))
+
+
+def test_accelerator_geodesics_give_the_same_episodes(monkeypatch):
+    """The whole-grid relaxation that GPUs and TPUs use for geodesics (distance fields,
+    matrices, frontier labelling) drives the same episodes as the CPU's sweeps, bit for
+    bit: forced here on the CPU for FBE, whose every step plans on them."""
+    states = _states((1000000, 1000001))
+    _, sweeps = _batched(FBE())(states)
+    monkeypatch.setenv(METHOD_ENV, "relax")
+    assert geodesic_method() == "relax"
+    _, relax = jax.jit(jax.vmap(lambda s: rollout(s, FBE(), SMOKE, STEPS)))(states)
+    assert int(np.asarray(sweeps.moved).sum()) > 0
+    for field in ("poses", "moved", "micro_length", "path_length", "found_count", "active"):
+        np.testing.assert_array_equal(
+            np.asarray(getattr(relax, field)), np.asarray(getattr(sweeps, field)), err_msg=field
+        )
 
 
 def test_one_trajectory_record_for_every_strategy():
