@@ -1,0 +1,126 @@
+"""How long the optimal visit length takes: Held-Karp against the heuristic, by size.
+
+Usage::
+
+    python -m benchmarks.bench_metrics --sizes 4,8,10,12,14 --matrices 5
+
+The navigation evaluation computes the optimal visit length (the shortest open path from
+the start through every target found, ``bfsop_jax.metrics.optimal_visit_length``) once per
+episode: Held-Karp up to ``EXACT_MAX`` targets, the 2-opt/or-opt heuristic above. For each
+number of targets F, ``--matrices`` random Euclidean matrices (points uniform in a
+20 m square, seeded) are solved both ways on the host. Printed per F: the median and
+slowest milliseconds of each, and how far above the optimum the heuristic lands (mean and
+worst, percent). Sizes above ``EXACT_FORCE_MAX`` are timed with the heuristic only. Record
+results with the machine and the date in ``docs/benchmarks.md``.
+
+``--preset P --houses H`` also counts, over H generated houses (evaluation seeds), how many
+instances of each target category a house holds: the F of an episode that finds them all,
+so the share above ``EXACT_MAX`` is how often the heuristic would be used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from benchmarks.timing import machine
+from bfsop_jax.metrics import EXACT_FORCE_MAX, EXACT_MAX, optimal_visit_length
+
+
+def _euclidean(rng: np.random.Generator, f: int) -> np.ndarray:
+    """[F+1, F+1] metres between F+1 points uniform in a 20 m square."""
+    pts = rng.uniform(0.0, 20.0, size=(f + 1, 2))
+    return np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+
+
+def _timed(d: np.ndarray, exact: bool) -> tuple[float, float]:
+    """(length in metres, milliseconds) of one solve."""
+    t0 = time.perf_counter()
+    length = optimal_visit_length(d, exact=exact)
+    return length, 1e3 * (time.perf_counter() - t0)
+
+
+def _sizes(text: str) -> list[int]:
+    try:
+        sizes = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise SystemExit(f"--sizes must be comma-separated integers, got {text!r}") from None
+    if not sizes or min(sizes) < 1:
+        raise SystemExit(f"--sizes must list target counts >= 1, got {text!r}")
+    return sizes
+
+
+def main(argv: list[str] | None = None) -> list[dict[str, float]]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default=f"4,8,10,{EXACT_MAX},14",
+                        help="comma-separated numbers of targets F")  # fmt: skip
+    parser.add_argument("--matrices", type=int, default=5, help="random matrices per size")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--preset", default=None, choices=("smoke", "demo", "paper"),
+                        help="also count targets per house")  # fmt: skip
+    parser.add_argument("--houses", type=int, default=32, help="houses counted (--preset)")
+    args = parser.parse_args(argv)
+    if args.matrices < 1:
+        raise SystemExit(f"--matrices must be >= 1, got {args.matrices}")
+    sizes = _sizes(args.sizes)
+    print(machine())
+    print(f"automatic mode: exact up to EXACT_MAX = {EXACT_MAX} targets, "
+          f"exact=True up to {EXACT_FORCE_MAX}")  # fmt: skip
+    print("|  F | Held-Karp ms (median / max) | heuristic ms (median / max) "
+          "| heuristic above optimum % (mean / max) |")  # fmt: skip
+    print("|---:|---:|---:|---:|")
+    rows = []
+    rng = np.random.default_rng(args.seed)
+    for f in sizes:
+        mats = [_euclidean(rng, f) for _ in range(args.matrices)]
+        heur = [_timed(d, exact=False) for d in mats]
+        h_ms = np.array([t for _, t in heur])
+        row = {"F": f, "heuristic_ms_median": float(np.median(h_ms)),
+               "heuristic_ms_max": float(h_ms.max())}  # fmt: skip
+        exact_cell, gap_cell = "-", "-"
+        if f <= EXACT_FORCE_MAX:
+            exact = [_timed(d, exact=True) for d in mats]
+            e_ms = np.array([t for _, t in exact])
+            h_len, e_len = np.array([h for h, _ in heur]), np.array([e for e, _ in exact])
+            gap = 100.0 * (h_len / e_len - 1.0)
+            row |= {"exact_ms_median": float(np.median(e_ms)), "exact_ms_max": float(e_ms.max()),
+                    "gap_pct_mean": float(gap.mean()), "gap_pct_max": float(gap.max())}  # fmt: skip
+            exact_cell = f"{np.median(e_ms):.2f} / {e_ms.max():.2f}"
+            gap_cell = f"{gap.mean():.2f} / {gap.max():.2f}"
+        print(f"| {f:2d} | {exact_cell} | {np.median(h_ms):.2f} / {h_ms.max():.2f} "
+              f"| {gap_cell} |")  # fmt: skip
+        rows.append(row)
+    if args.preset is not None:
+        _count_targets(args.preset, args.houses)
+    return rows
+
+
+def _count_targets(preset_name: str, houses: int) -> None:
+    """Print the largest and the share above ``EXACT_MAX`` of the instances per target
+    category in ``houses`` generated houses."""
+    import jax
+    import jax.numpy as jnp
+
+    from bfsop_jax.config import EVAL_SEED_START, get_preset
+    from bfsop_jax.world import generate_house
+    from bfsop_jax.world.constants import N_TARGETS, TARGET_NAMES
+
+    if houses < 1:
+        raise SystemExit(f"--houses must be >= 1, got {houses}")
+    preset = get_preset(preset_name)
+    keys = jax.vmap(jax.random.key)(jnp.arange(EVAL_SEED_START, EVAL_SEED_START + houses))
+    batch = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(keys, preset)
+    category = np.asarray(batch.object_category)  # [H, M]
+    counts = np.stack([(category == c).sum(-1) for c in range(N_TARGETS)], -1)  # [H, T]
+    print(
+        f"{preset_name}, {houses} houses: instances per house (largest) "
+        + ", ".join(f"{n} {m}" for n, m in zip(TARGET_NAMES, counts.max(0), strict=True))
+    )
+    print(f"house-category pairs with more than EXACT_MAX = {EXACT_MAX} targets: "
+          f"{100 * (counts > EXACT_MAX).mean():.1f} %")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
