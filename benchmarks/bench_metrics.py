@@ -64,6 +64,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     args = parser.parse_args(argv)
     if args.matrices < 1:
         raise SystemExit(f"--matrices must be >= 1, got {args.matrices}")
+    if args.houses < 1:
+        raise SystemExit(f"--houses must be >= 1, got {args.houses}")
     sizes = _sizes(args.sizes)
     print(machine())
     print(f"automatic mode: exact up to EXACT_MAX = {EXACT_MAX} targets, "
@@ -107,8 +109,6 @@ def _count_targets(preset_name: str, houses: int) -> None:
     from bfsop_jax.world import generate_house
     from bfsop_jax.world.constants import N_TARGETS, TARGET_NAMES
 
-    if houses < 1:
-        raise SystemExit(f"--houses must be >= 1, got {houses}")
     preset = get_preset(preset_name)
     keys = jax.vmap(jax.random.key)(jnp.arange(EVAL_SEED_START, EVAL_SEED_START + houses))
     batch = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(keys, preset)
