@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from bfsop_jax.config import get_preset
 from bfsop_jax.data import generate as gen
 from bfsop_jax.sop.callback import callback_stats, reset_callback_stats
@@ -78,10 +79,10 @@ def _report(name: str, timings: dict[str, float], vns_s: float, houses: int, row
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo")
-    ap.add_argument("--houses", type=int, default=4)
-    ap.add_argument("--tasks", type=int, default=48)
-    ap.add_argument("--vns-iters", type=int, default=500)
-    ap.add_argument("--vns-no-improve", type=int, default=250)
+    ap.add_argument("--houses", type=positive_int, default=4)
+    ap.add_argument("--tasks", type=positive_int, default=48)
+    ap.add_argument("--vns-iters", type=positive_int, default=500)
+    ap.add_argument("--vns-no-improve", type=positive_int, default=250)
     args = ap.parse_args()
     preset = get_preset(args.preset)
     config = dataclasses.replace(
@@ -112,4 +113,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

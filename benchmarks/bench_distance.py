@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import time_calls
 from bfsop_jax.config import PRESET_NAMES, get_preset
 from bfsop_jax.navigation import (
@@ -176,9 +177,9 @@ def _in_loop_matrices(preset, maps, points, repeats: int) -> tuple[float, float]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--preset", choices=PRESET_NAMES, action="append")
-    parser.add_argument("--points", type=int, default=76)
-    parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--houses", type=int, default=3)
+    parser.add_argument("--points", type=positive_int, default=76)
+    parser.add_argument("--repeats", type=positive_int, default=10)
+    parser.add_argument("--houses", type=positive_int, default=3)
     args = parser.parse_args()
     for name in args.preset or PRESET_NAMES:
         r = run(name, args.points, args.repeats, args.houses)
@@ -197,4 +198,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

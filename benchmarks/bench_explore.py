@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import machine, time_calls
 from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
 from bfsop_jax.config import EVAL_SEED_START, get_preset
@@ -111,9 +112,9 @@ def run(preset_name: str, houses: int, batch_size: int | None = None) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="smoke,demo,paper")
-    ap.add_argument("--houses", type=int, default=32, help="distinct houses")
+    ap.add_argument("--houses", type=positive_int, default=32, help="distinct houses")
     ap.add_argument(
-        "--batch", type=int, default=None, help="episodes run together (default: --houses)"
+        "--batch", type=positive_int, default=None, help="episodes run together (default: --houses)"
     )
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args()
@@ -146,4 +147,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

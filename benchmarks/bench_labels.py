@@ -25,6 +25,7 @@ import time
 import jax
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from bfsop_jax.config import EVAL_SEED_START
 from bfsop_jax.data.generate import DataConfig, pose_tasks
 from bfsop_jax.eval.solvers import take
@@ -42,10 +43,10 @@ def _solve_all(instances, n: int, config: VNSConfig) -> tuple[np.ndarray, float]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="paper")
-    ap.add_argument("--houses", type=int, default=2, help="held-out houses")
-    ap.add_argument("--tasks", type=int, default=20, help="virtual tasks per house")
-    ap.add_argument("--vns-iters", type=int, default=500)
-    ap.add_argument("--vns-no-improve", type=int, default=250)
+    ap.add_argument("--houses", type=positive_int, default=2, help="held-out houses")
+    ap.add_argument("--tasks", type=positive_int, default=20, help="virtual tasks per house")
+    ap.add_argument("--vns-iters", type=positive_int, default=500)
+    ap.add_argument("--vns-no-improve", type=positive_int, default=250)
     args = ap.parse_args()
     cfg = DataConfig(preset=args.preset, houses=1, tasks_per_house=args.tasks)
     seeds = np.arange(EVAL_SEED_START, EVAL_SEED_START + args.houses)
@@ -69,4 +70,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import machine
 from bfsop_jax.metrics import EXACT_FORCE_MAX, EXACT_MAX, optimal_visit_length
 
@@ -43,30 +44,27 @@ def _timed(d: np.ndarray, exact: bool) -> tuple[float, float]:
 
 
 def _sizes(text: str) -> list[int]:
+    """``--sizes``: comma-separated numbers of targets, each >= 1 (argparse type)."""
     try:
         sizes = [int(s) for s in text.split(",") if s.strip()]
     except ValueError:
-        raise SystemExit(f"--sizes must be comma-separated integers, got {text!r}") from None
+        sizes = []
     if not sizes or min(sizes) < 1:
-        raise SystemExit(f"--sizes must list target counts >= 1, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected target counts >= 1, got {text!r}")
     return sizes
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", default=f"4,8,10,{EXACT_MAX},14",
+    parser.add_argument("--sizes", type=_sizes, default=f"4,8,10,{EXACT_MAX},14",
                         help="comma-separated numbers of targets F")  # fmt: skip
-    parser.add_argument("--matrices", type=int, default=5, help="random matrices per size")
+    parser.add_argument("--matrices", type=positive_int, default=5, help="random matrices per size")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--preset", default=None, choices=("smoke", "demo", "paper"),
                         help="also count targets per house")  # fmt: skip
-    parser.add_argument("--houses", type=int, default=32, help="houses counted (--preset)")
+    parser.add_argument("--houses", type=positive_int, default=32, help="houses counted (--preset)")
     args = parser.parse_args(argv)
-    if args.matrices < 1:
-        raise SystemExit(f"--matrices must be >= 1, got {args.matrices}")
-    if args.houses < 1:
-        raise SystemExit(f"--houses must be >= 1, got {args.houses}")
-    sizes = _sizes(args.sizes)
+    sizes = args.sizes
     print(machine())
     print(f"automatic mode: exact up to EXACT_MAX = {EXACT_MAX} targets, "
           f"exact=True up to {EXACT_FORCE_MAX}")  # fmt: skip
@@ -123,4 +121,4 @@ def _count_targets(preset_name: str, houses: int) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

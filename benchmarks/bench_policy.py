@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import machine, time_calls
 from bfsop_jax import ops
 from bfsop_jax import policy as policy_module
@@ -76,12 +77,14 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default="demo", help="shipped model name or run directory")
     ap.add_argument("--preset", default="demo", help="preset of the posed tasks")
-    ap.add_argument("--houses", type=int, default=2, help="held-out houses to pose tasks in")
-    ap.add_argument("--tasks", type=int, default=24, help="tasks per house")
-    ap.add_argument("--batch", type=int, default=1024, help="instances of the batched plan")
+    ap.add_argument(
+        "--houses", type=positive_int, default=2, help="held-out houses to pose tasks in"
+    )
+    ap.add_argument("--tasks", type=positive_int, default=24, help="tasks per house")
+    ap.add_argument(
+        "--batch", type=positive_int, default=1024, help="instances of the batched plan"
+    )
     args = ap.parse_args(argv)
-    if args.houses < 1 or args.tasks < 1 or args.batch < 1:
-        raise SystemExit("--houses, --tasks and --batch must be >= 1")
 
     cfg = DataConfig(preset=args.preset, tasks_per_house=args.tasks)
     seeds = np.arange(EVAL_SEED_START, EVAL_SEED_START + args.houses)
@@ -159,4 +162,4 @@ def _batched(policy: StrategicPolicy, items: list, size: int) -> dict[str, float
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

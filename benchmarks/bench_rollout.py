@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import machine, time_calls
 from bfsop_jax.config import EVAL_SEED_START, get_preset
 from bfsop_jax.env import observe, step
@@ -104,8 +105,8 @@ def run(
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo")
-    ap.add_argument("--batch", type=int, default=90)
-    ap.add_argument("--houses", type=int, default=None, help="cap on distinct houses")
+    ap.add_argument("--batch", type=positive_int, default=90)
+    ap.add_argument("--houses", type=positive_int, default=None, help="cap on distinct houses")
     ap.add_argument("--methods", default=",".join(nav.METHODS))
     ap.add_argument("--checkpoint", default=None)
     ap.add_argument("--json", help="also write the figures to this JSON file")
@@ -127,4 +128,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -31,6 +31,7 @@ import jax
 import numpy as np
 from tqdm import tqdm
 
+from benchmarks.cli import count, positive_float, positive_int, run_main
 from bfsop_jax.sop import (
     Solution,
     budget_gate,
@@ -227,15 +228,17 @@ def _bench_two_opt(insts, repeats: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sop-dir", help="folder with instances/ and the two CSV files")
-    parser.add_argument("--optima", type=int, default=150, help="proven optima (0: skip)")
+    parser.add_argument("--optima", type=count, default=150, help="proven optima (0: skip)")
     parser.add_argument("--exact", action="store_true", help="also run the exact solver there")
-    parser.add_argument("--exact-max-sets", type=int, default=16)
-    parser.add_argument("--best-known", type=int, default=40, help="literature instances")
-    parser.add_argument("--max-sets", type=int, default=50)
-    parser.add_argument("--random", type=int, default=20, help="navigation-like instances")
-    parser.add_argument("--small", type=int, default=100, help="small instances vs exact")
-    parser.add_argument("--repeats", type=int, default=20, help="timing repeats for 2-opt")
-    parser.add_argument("--time-limit", type=float, default=None, help="VNS seconds per instance")
+    parser.add_argument("--exact-max-sets", type=positive_int, default=16)
+    parser.add_argument("--best-known", type=count, default=40, help="literature instances")
+    parser.add_argument("--max-sets", type=positive_int, default=50)
+    parser.add_argument("--random", type=count, default=20, help="navigation-like instances")
+    parser.add_argument("--small", type=count, default=100, help="small instances vs exact")
+    parser.add_argument("--repeats", type=positive_int, default=20, help="timing repeats for 2-opt")
+    parser.add_argument(
+        "--time-limit", type=positive_float, default=None, help="VNS seconds per instance"
+    )
     args = parser.parse_args()
     vns_kwargs = {"time_limit": args.time_limit}
     print(
@@ -257,4 +260,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import positive_int, run_main
 from bfsop_jax.config import get_preset
 from bfsop_jax.sop.io import random_instance
 from bfsop_jax.sop.vns import solve_greedy
@@ -77,9 +78,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=["demo", "paper"])
     ap.add_argument("--model", default=None, help="model preset (default: the preset's)")
-    ap.add_argument("--configs", type=int, default=8)
-    ap.add_argument("--instances", type=int, default=512)
-    ap.add_argument("--epochs", type=int, default=3)
+    ap.add_argument("--configs", type=positive_int, default=8)
+    ap.add_argument("--instances", type=positive_int, default=512)
+    ap.add_argument("--epochs", type=positive_int, default=3)
     args = ap.parse_args(argv)
     if args.configs < 2 or args.instances < 1 or args.epochs < 1:
         raise SystemExit("error: need --configs >= 2, --instances >= 1, --epochs >= 1")
@@ -117,4 +118,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks import bench_distance, bench_mapping
+from benchmarks.cli import positive_int, run_main
 from bfsop_jax.config import get_preset
 from bfsop_jax.env import make_action, reset, step
 from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS
@@ -99,8 +100,8 @@ def run(preset_name: str = "demo", batch: int = 64, repeats: int = 5) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo")
-    ap.add_argument("--batch", type=int, default=64)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--batch", type=positive_int, default=64)
+    ap.add_argument("--repeats", type=positive_int, default=5)
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args()
     res = run(args.preset, args.batch, args.repeats)
@@ -125,4 +126,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
