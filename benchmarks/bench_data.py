@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks.cli import positive_int, run_main
-from bfsop_jax.config import get_preset
+from bfsop_jax.config import PRESET_NAMES, get_preset
 from bfsop_jax.data import generate as gen
 from bfsop_jax.sop.callback import callback_stats, reset_callback_stats
 from bfsop_jax.world.prior import default_prior
@@ -78,7 +78,7 @@ def _report(name: str, timings: dict[str, float], vns_s: float, houses: int, row
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="demo")
+    ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--houses", type=positive_int, default=4)
     ap.add_argument("--tasks", type=positive_int, default=48)
     ap.add_argument("--vns-iters", type=positive_int, default=500)

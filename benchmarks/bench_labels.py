@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 from benchmarks.cli import positive_int, run_main
-from bfsop_jax.config import EVAL_SEED_START
+from bfsop_jax.config import EVAL_SEED_START, PRESET_NAMES
 from bfsop_jax.data.generate import DataConfig, pose_tasks
 from bfsop_jax.eval.solvers import take
 from bfsop_jax.sop import solve_vns
@@ -42,7 +42,7 @@ def _solve_all(instances, n: int, config: VNSConfig) -> tuple[np.ndarray, float]
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="paper")
+    ap.add_argument("--preset", default="paper", choices=PRESET_NAMES)
     ap.add_argument("--houses", type=positive_int, default=2, help="held-out houses")
     ap.add_argument("--tasks", type=positive_int, default=20, help="virtual tasks per house")
     ap.add_argument("--vns-iters", type=positive_int, default=500)

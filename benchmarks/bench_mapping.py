@@ -26,7 +26,7 @@ import numpy as np
 
 from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import time_calls
-from bfsop_jax.config import Preset, get_preset
+from bfsop_jax.config import PRESET_NAMES, Preset, get_preset
 from bfsop_jax.sensing import mapping
 
 
@@ -115,7 +115,7 @@ def run(preset_name: str = "demo", batch: int = 64, repeats: int = 10) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", default="demo")
+    parser.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     parser.add_argument("--batch", type=positive_int, default=64)
     parser.add_argument("--repeats", type=positive_int, default=10)
     args = parser.parse_args()

@@ -27,6 +27,7 @@ import numpy as np
 
 from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import machine
+from bfsop_jax.config import PRESET_NAMES
 from bfsop_jax.metrics import EXACT_FORCE_MAX, EXACT_MAX, optimal_visit_length
 
 
@@ -60,7 +61,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
                         help="comma-separated numbers of targets F")  # fmt: skip
     parser.add_argument("--matrices", type=positive_int, default=5, help="random matrices per size")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--preset", default=None, choices=("smoke", "demo", "paper"),
+    parser.add_argument("--preset", default=None, choices=PRESET_NAMES,
                         help="also count targets per house")  # fmt: skip
     parser.add_argument("--houses", type=positive_int, default=32, help="houses counted (--preset)")
     args = parser.parse_args(argv)

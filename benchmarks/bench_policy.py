@@ -38,7 +38,7 @@ from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import machine, time_calls
 from bfsop_jax import ops
 from bfsop_jax import policy as policy_module
-from bfsop_jax.config import EVAL_SEED_START
+from bfsop_jax.config import EVAL_SEED_START, PRESET_NAMES
 from bfsop_jax.data.generate import DataConfig, pose_tasks
 from bfsop_jax.policy import StrategicPolicy
 
@@ -76,7 +76,9 @@ def _program(policy: StrategicPolicy, static_graph, two_opt: bool = True):
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default="demo", help="shipped model name or run directory")
-    ap.add_argument("--preset", default="demo", help="preset of the posed tasks")
+    ap.add_argument(
+        "--preset", default="demo", choices=PRESET_NAMES, help="preset of the posed tasks"
+    )
     ap.add_argument(
         "--houses", type=positive_int, default=2, help="held-out houses to pose tasks in"
     )

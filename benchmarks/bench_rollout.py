@@ -35,7 +35,7 @@ import numpy as np
 
 from benchmarks.cli import positive_int, run_main
 from benchmarks.timing import machine, time_calls
-from bfsop_jax.config import EVAL_SEED_START, get_preset
+from bfsop_jax.config import EVAL_SEED_START, PRESET_NAMES, get_preset
 from bfsop_jax.env import observe, step
 from bfsop_jax.eval import navigation as nav
 from bfsop_jax.sop import callback as vns_host
@@ -104,7 +104,7 @@ def run(
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="demo")
+    ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--batch", type=positive_int, default=90)
     ap.add_argument("--houses", type=positive_int, default=None, help="cap on distinct houses")
     ap.add_argument("--methods", default=",".join(nav.METHODS))

@@ -25,7 +25,7 @@ import numpy as np
 
 from benchmarks import bench_distance, bench_mapping
 from benchmarks.cli import positive_int, run_main
-from bfsop_jax.config import get_preset
+from bfsop_jax.config import PRESET_NAMES, get_preset
 from bfsop_jax.env import make_action, reset, step
 from bfsop_jax.world.constants import N_CATEGORIES, N_TARGETS
 from bfsop_jax.world.generator import generate_house
@@ -99,7 +99,7 @@ def run(preset_name: str = "demo", batch: int = 64, repeats: int = 5) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="demo")
+    ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--batch", type=positive_int, default=64)
     ap.add_argument("--repeats", type=positive_int, default=5)
     ap.add_argument("--json", help="also write the figures to this JSON file")

@@ -283,8 +283,15 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         args.extra_data = [d for d in (x.strip() for x in args.extra_data.split(",")) if d]
         if not args.extra_data:
             raise ValueError("--extra-data expects a comma-separated list of directories")
+    for name in ("houses", "tasks", "epochs", "eval_tasks", "rounds", "dagger_epochs",
+                 "dagger_houses", "dagger_categories", "rl_epochs", "rl_samples"):  # fmt: skip
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
     if args.lr is not None and not args.lr > 0:
         raise ValueError(f"--lr must be a positive learning rate, got {args.lr}")
+    if not args.rl_lr > 0:
+        raise ValueError(f"--rl-lr must be a positive learning rate, got {args.rl_lr}")
     if args.on_policy is not None and not args.on_policy >= 0:
         raise ValueError(f"--on-policy must be a weight >= 0, got {args.on_policy}")
     if args.shard is not None:

@@ -14,7 +14,7 @@ import jax
 import numpy as np
 from tqdm import tqdm
 
-from bfsop_jax.config import EVAL_SEED_START, get_preset
+from bfsop_jax.config import EVAL_SEED_START, PRESET_NAMES, get_preset
 from bfsop_jax.world.constants import CATEGORY_NAMES, N_TARGETS, TARGET_NAMES
 from bfsop_jax.world.generator import generate_house
 from bfsop_jax.world.prior import DEFAULT_PRIOR_PATH, estimate_prior, save_prior
@@ -22,13 +22,18 @@ from bfsop_jax.world.prior import DEFAULT_PRIOR_PATH, estimate_prior, save_prior
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="demo")
+    ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--houses", type=int, default=256, help="number of training houses")
     ap.add_argument("--seed-start", type=int, default=0, help="first training house seed")
     ap.add_argument("--batch", type=int, default=32)
     ap.add_argument("--out", default=str(DEFAULT_PRIOR_PATH))
     args = ap.parse_args(argv)
     preset = get_preset(args.preset)
+    if args.houses < 1 or args.batch < 1 or args.seed_start < 0:
+        raise SystemExit(
+            f"error: need --houses >= 1, --batch >= 1 and --seed-start >= 0, got "
+            f"{args.houses}, {args.batch} and {args.seed_start}"
+        )
     if args.seed_start + args.houses > EVAL_SEED_START:
         raise SystemExit(f"training seeds must stay below {EVAL_SEED_START} (evaluation seeds)")
 

@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from bfsop_jax import viz
 from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
-from bfsop_jax.config import EVAL_SEED_START, get_preset
+from bfsop_jax.config import EVAL_SEED_START, PRESET_NAMES, get_preset
 from bfsop_jax.env import observe, reset
 from bfsop_jax.navigation.frontiers import frontier_clusters
 from bfsop_jax.world import TARGET_NAMES, generate_house, target_id
@@ -30,13 +30,15 @@ from bfsop_jax.world import TARGET_NAMES, generate_house, target_id
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="demo", help="smoke | demo | paper")
+    ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--seed", type=int, default=EVAL_SEED_START, help="house seed")
     ap.add_argument("--category", default=None, help="target category (default: most frequent)")
     ap.add_argument("--budget", type=float, default=None, help="travel budget in metres")
     ap.add_argument("--out", default="runs/simulate")
     args = ap.parse_args(argv)
     preset = get_preset(args.preset)
+    if args.budget is not None and not 0 < args.budget < float("inf"):
+        raise SystemExit(f"error: --budget must be a positive number of metres, got {args.budget}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 

@@ -323,3 +323,8 @@ def test_distill_rejects_bad_arguments(tmp_path, capsys):
     with pytest.raises(ValueError, match="START:END"):
         distill.main(["--preset", "smoke", "--stage", "eval", "--checkpoint", str(tmp_path),
                       "--eval-seeds", "nonsense", "--out", str(tmp_path)])  # fmt: skip
+    for flag, value in (("--epochs", "0"), ("--rl-samples", "0"), ("--dagger-houses", "-2"),
+                        ("--rl-lr", "0")):  # fmt: skip
+        with pytest.raises(ValueError, match=flag):
+            distill.main(["--preset", "smoke", "--out", str(tmp_path / "never"), flag, value])
+    assert not (tmp_path / "never").exists()
