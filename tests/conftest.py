@@ -40,25 +40,6 @@ settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 
-# The suite runs on two xdist workers, one test module at a time each (``--dist
-# loadscope``, in collection order: ``--no-loadscope-reorder``). Modules start heaviest
-# first, so that the last ones to run are short and neither worker idles long while the
-# other finishes a large module; modules not listed follow in their usual order. The list
-# only orders modules (every test still runs): refresh it from ``--durations=0`` when the
-# balance drifts (docs/benchmarks.md, "The test suite").
-HEAVY_MODULES_FIRST = (
-    "test_distill", "test_strategies", "test_insertion_decoder", "test_explore", "test_rl",
-    "test_evaluate", "test_data", "test_training", "test_coverage", "test_scale_out",
-    "test_policy", "test_sweep", "test_model", "test_checkpoint_devices",
-)  # fmt: skip
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Run the modules of ``HEAVY_MODULES_FIRST`` first, in that order."""
-    rank = {name: i for i, name in enumerate(HEAVY_MODULES_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.stem, len(rank)))
-
-
 def pytest_unconfigure(config: pytest.Config) -> None:
     """Remove this session's compilation cache (in the process that made it)."""
     if _OWN_CACHE_DIR is not None and not hasattr(config, "workerinput"):
