@@ -65,7 +65,6 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
                         help="also count targets per house")  # fmt: skip
     parser.add_argument("--houses", type=positive_int, default=32, help="houses counted (--preset)")
     args = parser.parse_args(argv)
-    sizes = args.sizes
     print(machine())
     print(f"automatic mode: exact up to EXACT_MAX = {EXACT_MAX} targets, "
           f"exact=True up to {EXACT_FORCE_MAX}")  # fmt: skip
@@ -74,7 +73,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     print("|---:|---:|---:|---:|")
     rows = []
     rng = np.random.default_rng(args.seed)
-    for f in sizes:
+    for f in args.sizes:
         mats = [_euclidean(rng, f) for _ in range(args.matrices)]
         heur = [_timed(d, exact=False) for d in mats]
         h_ms = np.array([t for _, t in heur])
@@ -100,19 +99,14 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
 
 def _count_targets(preset_name: str, houses: int) -> None:
     """Print the largest and the share above ``EXACT_MAX`` of the instances per target
-    category in ``houses`` generated houses."""
-    import jax
-    import jax.numpy as jnp
-
+    category in ``houses`` generated houses (the evaluation's own count)."""
     from bfsop_jax.config import EVAL_SEED_START, get_preset
-    from bfsop_jax.world import generate_house
-    from bfsop_jax.world.constants import N_TARGETS, TARGET_NAMES
+    from bfsop_jax.eval.navigation import HouseSet
+    from bfsop_jax.world.constants import TARGET_NAMES
 
-    preset = get_preset(preset_name)
-    keys = jax.vmap(jax.random.key)(jnp.arange(EVAL_SEED_START, EVAL_SEED_START + houses))
-    batch = jax.jit(jax.vmap(generate_house, in_axes=(0, None)), static_argnums=1)(keys, preset)
-    category = np.asarray(batch.object_category)  # [H, M]
-    counts = np.stack([(category == c).sum(-1) for c in range(N_TARGETS)], -1)  # [H, T]
+    house_set = HouseSet(get_preset(preset_name))
+    seeds = range(EVAL_SEED_START, EVAL_SEED_START + houses)
+    counts = np.stack([house_set.counts(h) for h in seeds])  # [H, N_TARGETS]
     print(
         f"{preset_name}, {houses} houses: instances per house (largest) "
         + ", ".join(f"{n} {m}" for n, m in zip(TARGET_NAMES, counts.max(0), strict=True))
