@@ -4,7 +4,8 @@ Host-side post-processing of recorded episodes, in plain NumPy (no JAX):
 
 * :func:`optimal_visit_length` -- the shortest open path (metres) that leaves the start node
   and visits every target once, without returning: exact Held-Karp dynamic programming up to
-  :data:`EXACT_MAX` targets, a nearest-neighbour + 2-opt + or-opt heuristic above.
+  :data:`EXACT_MAX` targets, an iterated local search (2-opt and or-opt moves, double-bridge
+  kicks) above.
 * :func:`ppl` -- progress weighted by path length, ``P * min(1, l_opt / L)`` with
   ``P = found / total``.
 * :func:`revisit_fraction` -- the share of the travelled length spent moving into planning
@@ -30,13 +31,18 @@ __all__ = [
     "paired_bootstrap_ci",
 ]
 
-EXACT_MAX = 12
-"""Largest number of targets F solved exactly by Held-Karp in automatic mode."""
+EXACT_MAX = 18
+"""Largest number of targets F solved exactly by Held-Karp in automatic mode (up to here it
+is no slower than the heuristic, about 0.4 s at 18: ``python -m benchmarks.bench_metrics``)."""
 
-EXACT_FORCE_MAX = 16
-"""Largest F accepted with ``exact=True`` (the DP table has ``2**F * F`` entries)."""
+EXACT_FORCE_MAX = 20
+"""Largest F accepted with ``exact=True`` (the DP table has ``2**F * F`` entries: 168 MB at 20)."""
 
 _OR_OPT_MAX_SEGMENT = 3
+_ILS_RESTARTS = 3  # iterated local searches, each from its own start (heuristic above EXACT_MAX)
+_ILS_KICKS = 400  # double-bridge kicks at most in each
+_ILS_STALL = 150  # ... stopping after this many in a row without a shorter path
+_ILS_SEED = 0  # the generator of kicks and starts: a matrix always gives the same length
 _BOOT_CHUNK = 4_000_000  # resampled indices held in memory at once
 
 
@@ -115,72 +121,122 @@ def _nearest_neighbour(w: np.ndarray) -> np.ndarray:
     return path
 
 
-def _two_opt(path: np.ndarray, w: np.ndarray, tol: float, max_moves: int) -> np.ndarray:
-    """Best-improvement 2-opt for an open path with a fixed first node.
+def _prefix_costs(path: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Prefix sums ``[n]`` of the path's edge costs walked forward and walked backward."""
+    fwd = w[path[:-1], path[1:]]
+    bwd = w[path[1:], path[:-1]]
+    return np.concatenate(([0.0], np.cumsum(fwd))), np.concatenate(([0.0], np.cumsum(bwd)))
+
+
+def _best_two_opt(path: np.ndarray, w: np.ndarray) -> tuple[float, tuple[int, int]]:
+    """Best 2-opt move for an open path with a fixed first node: ``(delta, (i, j))``.
 
     Move ``(i, j)``, ``1 <= i < j <= n-1``, reverses ``path[i..j]``. Costs may be asymmetric:
     the reversed inner edges are charged in the backward direction (prefix sums of forward and
     backward edge costs give every move's delta in one vectorised evaluation).
     """
     n = len(path)
-    if n < 3:
-        return path
     ii, jj = np.triu_indices(n - 1, k=1)
-    ii = ii + 1
-    jj = jj + 1
-    has_tail = jj < n - 1
-    for _ in range(max_moves):
-        fwd = w[path[:-1], path[1:]]
-        bwd = w[path[1:], path[:-1]]
-        cf = np.concatenate(([0.0], np.cumsum(fwd)))
-        cb = np.concatenate(([0.0], np.cumsum(bwd)))
-        a = path[ii - 1]
-        b = path[ii]
-        c = path[jj]
-        e = path[np.minimum(jj + 1, n - 1)]
-        delta = (w[a, c] - w[a, b]) + (cb[jj] - cb[ii]) - (cf[jj] - cf[ii])
-        delta = delta + np.where(has_tail, w[b, e] - w[c, e], 0.0)
-        m = int(np.argmin(delta))
-        if not delta[m] < -tol:
+    ii, jj = ii + 1, jj + 1
+    cf, cb = _prefix_costs(path, w)
+    a, b, c = path[ii - 1], path[ii], path[jj]
+    e = path[np.minimum(jj + 1, n - 1)]
+    delta = (w[a, c] - w[a, b]) + (cb[jj] - cb[ii]) - (cf[jj] - cf[ii])
+    delta = delta + np.where(jj < n - 1, w[b, e] - w[c, e], 0.0)
+    m = int(np.argmin(delta))
+    return float(delta[m]), (int(ii[m]), int(jj[m]))
+
+
+def _best_or_opt(path: np.ndarray, w: np.ndarray) -> tuple[float, tuple[int, int, int, bool]]:
+    """Best or-opt move: ``(delta, (i, s, t, reverse))`` moves the segment ``path[i:i+s]``
+    (1..3 nodes, ``i >= 1``), reversed or not, to just after ``path[t]`` (``t = n-1``
+    appends it at the end). Every segment and insertion point is evaluated at once."""
+    n = len(path)
+    cf, cb = _prefix_costs(path, w)
+    t = np.arange(n)
+    has_next = t < n - 1
+    nxt = path[np.minimum(t + 1, n - 1)]
+    opened = np.where(has_next, w[path, nxt], 0.0)  # [n] edge cut at each insertion point
+    best: tuple[float, tuple[int, int, int, bool]] = (np.inf, (0, 0, 0, False))
+    for s in range(1, min(_OR_OPT_MAX_SEGMENT, n - 2) + 1):
+        i = np.arange(1, n - s + 1)  # [m] segment starts
+        j = i + s - 1  # segment ends
+        after = path[np.minimum(j + 1, n - 1)]
+        closed = np.where(j < n - 1, w[path[i - 1], after] - w[path[j], after], 0.0)
+        removal = closed - w[path[i - 1], path[i]]  # [m]
+        head, tail = path[i][:, None], path[j][:, None]
+        a, b = path[None, :], nxt[None, :]
+        legal = (t[None] <= (i - 2)[:, None]) | (t[None] >= (j + 1)[:, None])  # [m, n]
+        variants = [(False, w[a, head] + np.where(has_next, w[tail, b], 0.0))]
+        if s > 1:
+            turned = (cb[j] - cb[i]) - (cf[j] - cf[i])
+            variants.append((True, w[a, tail] + np.where(has_next, w[head, b], 0.0)
+                             + turned[:, None]))  # fmt: skip
+        for reverse, insert in variants:
+            delta = np.where(legal, removal[:, None] + insert - opened[None], np.inf)
+            k = int(np.argmin(delta))
+            if delta.flat[k] < best[0]:
+                best = (float(delta.flat[k]), (int(i[k // n]), s, k % n, reverse))
+    return best
+
+
+def _apply_or_opt(path: np.ndarray, move: tuple[int, int, int, bool]) -> np.ndarray:
+    i, s, t, reverse = move
+    seg = path[i : i + s][::-1] if reverse else path[i : i + s]
+    rest = np.concatenate((path[:i], path[i + s :]))
+    at = t + 1 if t < i else t + 1 - s  # just after the old path[t] in ``rest``
+    return np.concatenate((rest[:at], seg, rest[at:]))
+
+
+def _local_search(path: np.ndarray, w: np.ndarray, tol: float) -> np.ndarray:
+    """Apply the best 2-opt or or-opt move while one shortens the path by more than ``tol``."""
+    if len(path) < 3:
+        return path
+    for _ in range(10 * len(path) ** 2):  # a bound only: each move shortens the path
+        gain2, (i, j) = _best_two_opt(path, w)
+        gain3, move = _best_or_opt(path, w)
+        if min(gain2, gain3) >= -tol:
             break
-        i, j = int(ii[m]), int(jj[m])
-        path = np.concatenate((path[:i], path[i : j + 1][::-1], path[j + 1 :]))
+        if gain2 <= gain3:
+            path = np.concatenate((path[:i], path[i : j + 1][::-1], path[j + 1 :]))
+        else:
+            path = _apply_or_opt(path, move)
     return path
 
 
-def _or_opt(path: np.ndarray, w: np.ndarray, tol: float) -> tuple[np.ndarray, bool]:
-    """First-improvement or-opt: move a segment of 1..3 nodes (either direction) elsewhere.
+def _kicked_search(
+    path: np.ndarray, w: np.ndarray, tol: float, rng: np.random.Generator
+) -> tuple[np.ndarray, float]:
+    """Local search from ``path``, then double-bridge kicks of the best path so far, each
+    followed by local search and kept when shorter: ``(best path, its cost under w)``.
 
-    For each segment the cost of every insertion point in the remaining path is evaluated at
-    once; the first strictly improving move is applied.
+    A kick swaps two consecutive segments (three cut points drawn from ``rng``); up to
+    ``_ILS_KICKS`` kicks, stopping after ``_ILS_STALL`` in a row that do not improve.
     """
     n = len(path)
-    base = _path_cost(w, path)
-    for seg_len in range(1, min(_OR_OPT_MAX_SEGMENT, n - 2) + 1):
-        for i in range(1, n - seg_len + 1):
-            seg = path[i : i + seg_len]
-            rest = np.concatenate((path[:i], path[i + seg_len :]))
-            rest_cost = _path_cost(w, rest)
-            nxt = rest[1:]
-            bridge = w[rest[:-1], nxt]
-            variants = (seg,) if seg_len == 1 else (seg, seg[::-1])
-            for s in variants:
-                # Insert s after rest[t], t = 0..len(rest)-1 (t = last: append at the end).
-                new = rest_cost + _path_cost(w, s) + w[rest, s[0]]
-                new[:-1] += w[s[-1], nxt] - bridge
-                t = int(np.argmin(new))
-                if new[t] < base - tol:
-                    out = np.concatenate((rest[: t + 1], s, rest[t + 1 :]))
-                    return out, True
-    return path, False
+    best = _local_search(path, w, tol)
+    best_cost = _path_cost(w, best)
+    stall = 0
+    for _ in range(_ILS_KICKS):
+        a, b, c = np.sort(rng.choice(np.arange(1, n + 1), size=3, replace=False))
+        path = _local_search(np.concatenate((best[:a], best[b:c], best[a:b], best[c:])), w, tol)
+        cost = _path_cost(w, path)
+        stall += 1
+        if cost < best_cost - tol:
+            best, best_cost, stall = path, cost, 0
+        if stall >= _ILS_STALL:
+            break
+    return best, best_cost
 
 
 def _heuristic(d: np.ndarray) -> float:
-    """Nearest-neighbour construction from node 0, then 2-opt and or-opt until stable.
+    """Iterated local search over 2-opt and or-opt moves with double-bridge kicks, run
+    ``_ILS_RESTARTS`` times: from the nearest-neighbour path from node 0, then from random
+    orders. The generator has a fixed seed, so a matrix always gives the same length.
 
     Unreachable (+inf) pairs are replaced by a finite penalty larger than any all-finite path
-    while searching, so the improvement moves stay well defined; the returned value is the
-    length of the final path under the original matrix (+inf if it needs such a pair).
+    while searching, so the moves stay well defined; the returned value is the length of the
+    shortest path found under the original matrix (+inf if it needs such a pair).
     """
     n = d.shape[0]
     if n <= 2:
@@ -189,14 +245,16 @@ def _heuristic(d: np.ndarray) -> float:
     max_finite = float(d[finite].max()) if finite.any() else 0.0
     w = np.where(finite, d, (n + 1) * (max_finite + 1.0))
     tol = 1e-9 * max(max_finite, np.finfo(np.float64).tiny)
-    max_moves = 10 * n * n
-    path = _nearest_neighbour(w)
-    for _ in range(max_moves):
-        path = _two_opt(path, w, tol, max_moves)
-        path, improved = _or_opt(path, w, tol)
-        if not improved:
-            break
-    return _path_cost(d, path)
+    if n < 4:  # two orders at most: the local search tries both
+        return _path_cost(d, _local_search(_nearest_neighbour(w), w, tol))
+    rng = np.random.default_rng(_ILS_SEED)
+    best, best_cost = _kicked_search(_nearest_neighbour(w), w, tol, rng)
+    for _ in range(_ILS_RESTARTS - 1):
+        order = np.concatenate(([0], 1 + rng.permutation(n - 1)))
+        path, cost = _kicked_search(order, w, tol, rng)
+        if cost < best_cost - tol:
+            best, best_cost = path, cost
+    return _path_cost(d, best)
 
 
 def optimal_visit_length(dist: ArrayLike, *, exact: bool | None = None) -> float:
@@ -214,9 +272,11 @@ def optimal_visit_length(dist: ArrayLike, *, exact: bool | None = None) -> float
     Returns:
       The path length in metres; ``0.0`` for ``F = 0``; ``inf`` when every (found) path needs
       an unreachable pair. The heuristic -- nearest-neighbour construction from the start,
-      then best-improvement 2-opt and first-improvement or-opt (segments of 1..3 nodes, either
-      direction) for open paths until neither improves -- returns the length of a real
-      path, so it is never below the exact optimum.
+      best-improvement local search over 2-opt and or-opt moves (segments of 1..3 nodes,
+      either direction) for open paths, then up to 400 double-bridge kicks, each followed by
+      the local search and kept when shorter; three such runs, the second and third from
+      random orders -- returns the length of a real path, so it is never below the exact
+      optimum; it is deterministic (a fixed seed).
 
     Raises:
       ValueError: ``dist`` is not a square 2-D matrix of non-negative numbers or ``+inf``, or

@@ -166,7 +166,7 @@ def test_verification_points_give_a_sane_optimal_length():
     c = int(np.bincount(cats[(cats >= 0) & (cats < 9)], minlength=9).argmax())
     idx = np.flatnonzero(cats == c)
     start = jnp.asarray([8.1, 6.1], jnp.float32)
-    dist = np.asarray(jax.jit(nav._verification_matrix, static_argnums=4)(
+    dist = np.asarray(jax.jit(nav.verification_matrix, static_argnums=4)(
         house, start, jnp.asarray(idx, jnp.int32), jnp.ones(len(idx), bool), preset))  # fmt: skip
     assert dist.shape == (len(idx) + 1, len(idx) + 1)
     assert np.all(np.isfinite(dist)) and np.allclose(dist, dist.T)

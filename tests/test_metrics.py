@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+from bfsop_jax import metrics
 from bfsop_jax.metrics import (
     EXACT_FORCE_MAX,
     EXACT_MAX,
@@ -51,22 +52,64 @@ def test_held_karp_matches_brute_force(f: int, symmetric: bool) -> None:
         assert optimal_visit_length(d) == got  # automatic mode is exact here
 
 
-@pytest.mark.parametrize("f", range(8, 13))
-def test_heuristic_never_below_exact_and_close(f: int) -> None:
+@pytest.mark.parametrize("f", [8, 12, 16, EXACT_MAX])
+def test_heuristic_finds_the_optimum(f: int) -> None:
+    """The iterated local search lands on Held-Karp's optimum on these seeded matrices,
+    uniform and clustered (points around a few room centres, as targets in a house are);
+    it is never below it. Its miss rate by size: ``python -m benchmarks.bench_metrics``."""
     rng = np.random.default_rng(f)
-    for _ in range(2):
-        d = _euclidean(rng, f)
+    rooms = rng.uniform(0.0, 20.0, size=(4, 2))
+    clustered = rooms[rng.integers(0, 4, f + 1)] + rng.normal(0.0, 1.0, size=(f + 1, 2))
+    for d in (_euclidean(rng, f), np.linalg.norm(clustered[:, None] - clustered[None], axis=-1)):
         ex = optimal_visit_length(d, exact=True)
-        heur = optimal_visit_length(d, exact=False)
-        assert heur >= ex - 1e-9
-        assert heur <= 1.3 * ex
+        assert optimal_visit_length(d, exact=False) == pytest.approx(ex, rel=1e-12)
 
 
 def test_heuristic_asymmetric_never_below_exact() -> None:
     rng = np.random.default_rng(7)
-    for f in (5, 9):
+    for f in (5, 9, 14):
         d = rng.uniform(1.0, 10.0, size=(f + 1, f + 1))
         assert optimal_visit_length(d, exact=False) >= optimal_visit_length(d, exact=True) - 1e-9
+
+
+def test_heuristic_is_deterministic() -> None:
+    d = _euclidean(np.random.default_rng(21), 30)
+    assert optimal_visit_length(d) == optimal_visit_length(d)
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_best_moves_match_every_move_applied(symmetric: bool) -> None:
+    """The vectorised deltas of the best 2-opt and or-opt moves equal the best change in
+    path length over every move applied one by one (asymmetric costs included)."""
+    rng = np.random.default_rng(4 + symmetric)
+    n = 9
+    w = rng.uniform(0.5, 10.0, size=(n, n))
+    if symmetric:
+        w = (w + w.T) / 2
+    path = np.concatenate([[0], 1 + rng.permutation(n - 1)])
+    base = metrics._path_cost(w, path)
+    two = [
+        metrics._path_cost(w, np.concatenate((path[:i], path[i : j + 1][::-1], path[j + 1 :])))
+        for i in range(1, n) for j in range(i + 1, n)
+    ]  # fmt: skip
+    delta, (i, j) = metrics._best_two_opt(path, w)
+    assert delta == pytest.approx(min(two) - base, abs=1e-9)
+    moved = np.concatenate((path[:i], path[i : j + 1][::-1], path[j + 1 :]))
+    assert metrics._path_cost(w, moved) == pytest.approx(base + delta, abs=1e-9)
+
+    ors = []
+    for s in (1, 2, 3):
+        for i in range(1, n - s + 1):
+            for t in [*range(0, i - 1), *range(i + s, n)]:
+                for rev in (False, True) if s > 1 else (False,):
+                    out = metrics._apply_or_opt(path, (i, s, t, rev))
+                    assert sorted(out) == list(range(n)) and out[0] == 0
+                    ors.append(metrics._path_cost(w, out))
+    delta, move = metrics._best_or_opt(path, w)
+    assert delta == pytest.approx(min(ors) - base, abs=1e-9)
+    assert metrics._path_cost(w, metrics._apply_or_opt(path, move)) == pytest.approx(
+        base + delta, abs=1e-9
+    )
 
 
 def test_automatic_is_exact_up_to_exact_max() -> None:
@@ -81,7 +124,7 @@ def test_automatic_is_exact_up_to_exact_max() -> None:
 
 
 def test_automatic_uses_heuristic_above_exact_max() -> None:
-    f = 15
+    f = EXACT_MAX + 1
     d = _euclidean(np.random.default_rng(11), f)
     auto = optimal_visit_length(d)
     assert np.isfinite(auto)
@@ -305,5 +348,17 @@ def test_metrics_benchmark_rows() -> None:
 
     rows = main(["--sizes", f"3,{EXACT_FORCE_MAX + 1}", "--matrices", "2"])
     assert [r["F"] for r in rows] == [3, EXACT_FORCE_MAX + 1]
-    assert rows[0]["gap_pct_max"] >= rows[0]["gap_pct_mean"] >= 0.0
+    assert rows[0]["gap_pct_max"] >= rows[0]["gap_pct_mean"] >= -1e-9
+    assert rows[0]["misses"] == 0
     assert "exact_ms_median" not in rows[1] and rows[1]["heuristic_ms_median"] > 0
+
+
+def test_metrics_benchmark_on_house_matrices() -> None:
+    """With ``--preset``, the heuristic is compared with Held-Karp on the evaluation's own
+    matrices (a house's targets, from an episode's start)."""
+    from benchmarks.bench_metrics import main
+
+    rows = main(["--sizes", "3", "--matrices", "1", "--preset", "demo", "--houses", "1"])
+    house = [r for r in rows if r.get("preset") == "demo"]
+    assert [r["F"] for r in house] == [3] and house[0]["pairs"] >= 1
+    assert house[0]["misses"] == 0 and house[0]["gap_pct_max"] >= -1e-9

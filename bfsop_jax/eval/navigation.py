@@ -83,6 +83,7 @@ __all__ = [
     "describe_strategy",
     "protocol_episodes",
     "summarise",
+    "verification_matrix",
 ]
 
 METHODS: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st")
@@ -241,7 +242,7 @@ def describe_strategy(strategy: Any) -> str:
 # -- episode geometry on the true map ------------------------------------------------------
 
 
-def _verification_matrix(
+def verification_matrix(
     house: House, start_xy: jax.Array, targets: jax.Array, valid: jax.Array, preset: Preset
 ) -> jax.Array:
     """[S+1, S+1] geodesic distances (true map) between the start and targets' points.
@@ -291,7 +292,7 @@ class _Runner:
             jax.vmap(lambda s, m: continue_rollout(s, m, strategy, preset, _SEGMENT))
         )
         self.geometry = jax.jit(
-            jax.vmap(lambda h, s, t, v: _verification_matrix(h, s, t, v, preset))
+            jax.vmap(lambda h, s, t, v: verification_matrix(h, s, t, v, preset))
         )
 
         self.compile_s = 0.0
