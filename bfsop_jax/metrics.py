@@ -33,7 +33,7 @@ __all__ = [
 
 EXACT_MAX = 18
 """Largest number of targets F solved exactly by Held-Karp in automatic mode (up to here it
-is no slower than the heuristic, about 0.4 s at 18: ``python -m benchmarks.bench_metrics``)."""
+is no slower than the heuristic, about 0.3 s at 18: ``python -m benchmarks.bench_metrics``)."""
 
 EXACT_FORCE_MAX = 20
 """Largest F accepted with ``exact=True`` (the DP table has ``2**F * F`` entries: 168 MB at 20)."""
