@@ -18,6 +18,8 @@ Host-side post-processing of recorded episodes, in plain NumPy (no JAX):
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -128,17 +130,24 @@ def _prefix_costs(path: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(([0.0], np.cumsum(fwd))), np.concatenate(([0.0], np.cumsum(bwd)))
 
 
-def _best_two_opt(path: np.ndarray, w: np.ndarray) -> tuple[float, tuple[int, int]]:
+@functools.cache
+def _two_opt_moves(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every 2-opt move ``(i, j)``, ``1 <= i < j <= n-1``, of an open path of ``n`` nodes."""
+    ii, jj = np.triu_indices(n - 1, k=1)
+    return ii + 1, jj + 1
+
+
+def _best_two_opt(
+    path: np.ndarray, w: np.ndarray, cf: np.ndarray, cb: np.ndarray
+) -> tuple[float, tuple[int, int]]:
     """Best 2-opt move for an open path with a fixed first node: ``(delta, (i, j))``.
 
     Move ``(i, j)``, ``1 <= i < j <= n-1``, reverses ``path[i..j]``. Costs may be asymmetric:
-    the reversed inner edges are charged in the backward direction (prefix sums of forward and
-    backward edge costs give every move's delta in one vectorised evaluation).
+    the reversed inner edges are charged in the backward direction (the prefix sums ``cf``,
+    ``cb`` of :func:`_prefix_costs` give every move's delta in one vectorised evaluation).
     """
     n = len(path)
-    ii, jj = np.triu_indices(n - 1, k=1)
-    ii, jj = ii + 1, jj + 1
-    cf, cb = _prefix_costs(path, w)
+    ii, jj = _two_opt_moves(n)
     a, b, c = path[ii - 1], path[ii], path[jj]
     e = path[np.minimum(jj + 1, n - 1)]
     delta = (w[a, c] - w[a, b]) + (cb[jj] - cb[ii]) - (cf[jj] - cf[ii])
@@ -147,12 +156,13 @@ def _best_two_opt(path: np.ndarray, w: np.ndarray) -> tuple[float, tuple[int, in
     return float(delta[m]), (int(ii[m]), int(jj[m]))
 
 
-def _best_or_opt(path: np.ndarray, w: np.ndarray) -> tuple[float, tuple[int, int, int, bool]]:
+def _best_or_opt(
+    path: np.ndarray, w: np.ndarray, cf: np.ndarray, cb: np.ndarray
+) -> tuple[float, tuple[int, int, int, bool]]:
     """Best or-opt move: ``(delta, (i, s, t, reverse))`` moves the segment ``path[i:i+s]``
     (1..3 nodes, ``i >= 1``), reversed or not, to just after ``path[t]`` (``t = n-1``
     appends it at the end). Every segment and insertion point is evaluated at once."""
     n = len(path)
-    cf, cb = _prefix_costs(path, w)
     t = np.arange(n)
     has_next = t < n - 1
     nxt = path[np.minimum(t + 1, n - 1)]
@@ -193,8 +203,9 @@ def _local_search(path: np.ndarray, w: np.ndarray, tol: float) -> np.ndarray:
     if len(path) < 3:
         return path
     for _ in range(10 * len(path) ** 2):  # a bound only: each move shortens the path
-        gain2, (i, j) = _best_two_opt(path, w)
-        gain3, move = _best_or_opt(path, w)
+        cf, cb = _prefix_costs(path, w)
+        gain2, (i, j) = _best_two_opt(path, w, cf, cb)
+        gain3, move = _best_or_opt(path, w, cf, cb)
         if min(gain2, gain3) >= -tol:
             break
         if gain2 <= gain3:

@@ -92,7 +92,7 @@ def test_best_moves_match_every_move_applied(symmetric: bool) -> None:
         metrics._path_cost(w, np.concatenate((path[:i], path[i : j + 1][::-1], path[j + 1 :])))
         for i in range(1, n) for j in range(i + 1, n)
     ]  # fmt: skip
-    delta, (i, j) = metrics._best_two_opt(path, w)
+    delta, (i, j) = metrics._best_two_opt(path, w, *metrics._prefix_costs(path, w))
     assert delta == pytest.approx(min(two) - base, abs=1e-9)
     moved = np.concatenate((path[:i], path[i : j + 1][::-1], path[j + 1 :]))
     assert metrics._path_cost(w, moved) == pytest.approx(base + delta, abs=1e-9)
@@ -105,7 +105,7 @@ def test_best_moves_match_every_move_applied(symmetric: bool) -> None:
                     out = metrics._apply_or_opt(path, (i, s, t, rev))
                     assert sorted(out) == list(range(n)) and out[0] == 0
                     ors.append(metrics._path_cost(w, out))
-    delta, move = metrics._best_or_opt(path, w)
+    delta, move = metrics._best_or_opt(path, w, *metrics._prefix_costs(path, w))
     assert delta == pytest.approx(min(ors) - base, abs=1e-9)
     assert metrics._path_cost(w, metrics._apply_or_opt(path, move)) == pytest.approx(
         base + delta, abs=1e-9
