@@ -10,6 +10,7 @@ import pytest
 from bfsop_jax import metrics
 from bfsop_jax.config import get_preset
 from bfsop_jax.eval import navigation as nav
+from bfsop_jax.world.constants import TARGET_NAMES
 from experiments import evaluate
 
 ARGS = ["--preset", "smoke", "--house-seeds", "1000000:1000002", "--categories", "Apple,HousePlant",
@@ -102,6 +103,61 @@ def test_resume_reuses_finished_chunks(table1):
     again = evaluate.main(ARGS + ["--out", str(out)])
     assert [p.stat().st_mtime_ns for p in chunks] == stamps
     assert again["methods"] == result["methods"]
+
+
+def test_resume_rescores_chunks_of_an_older_scoring(table1, tmp_path, monkeypatch):
+    """Finished chunks scored another way (no ``scoring``, no stored found slots, another
+    L_opt) are re-scored from their saved paths when the run resumes; nothing runs again."""
+    import shutil
+
+    out, result = table1
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    chunks = sorted((old / "episodes").glob("*_[0-9][0-9][0-9].json"))
+    assert chunks and all(json.loads(p.read_text())["scoring"] == nav.SCORING for p in chunks)
+    for done in chunks:
+        saved = json.loads(done.read_text())
+        del saved["scoring"]
+        for r in saved["episodes"]:
+            r.update(l_opt=1.5 * r["l_opt"] + 1.0, ppl=-1.0, ppl_end=-1.0)
+        done.write_text(json.dumps(saved))
+        with np.load(done.with_suffix(".npz")) as z:
+            kept = {k: z[k] for k in z.files if not k.endswith("_found_slots")}
+        np.savez_compressed(done.with_suffix(".npz"), **kept)
+    monkeypatch.setattr(nav._Runner, "run", lambda *a: pytest.fail("an episode ran again"))
+    again = evaluate.main(ARGS + ["--out", str(old)])
+    assert again["scoring"] == nav.SCORING
+    assert len(again["episodes"]) == len(result["episodes"])
+    for new, ref in zip(again["episodes"], result["episodes"], strict=True):
+        assert new.keys() == ref.keys()
+        for k in ref:
+            assert new[k] == pytest.approx(ref[k], rel=1e-6, abs=1e-9), k
+    assert all(json.loads(p.read_text())["scoring"] == nav.SCORING for p in chunks)
+    # an old chunk without its paths cannot be re-scored: it runs again
+    done = chunks[0]
+    saved = json.loads(done.read_text())
+    done.write_text(json.dumps({k: v for k, v in saved.items() if k != "scoring"}))
+    done.with_suffix(".npz").unlink()
+    houses = nav.HouseSet(get_preset("smoke"))
+    episodes = [nav.Episode(r["house_seed"], TARGET_NAMES.index(r["category"]))
+                for r in saved["episodes"]]  # fmt: skip
+    assert nav._finished_chunk(done, episodes, houses) is None
+
+
+def test_a_methods_files_are_never_anothers(tmp_path):
+    """``tfl_reactive``'s chunk files leave ``tfl_reactive_gain``'s alone (resume deletes a
+    changed method's files; figures read its paths)."""
+    names = ["tfl_reactive_000.json", "tfl_reactive_000.npz", "tfl_reactive_1000.npz",
+             "tfl_reactive_999.npz", "tfl_reactive_planner.json", "tfl_reactive_gain_000.npz",
+             "tfl_reactive_gain_planner.json"]  # fmt: skip
+    for name in names:
+        (tmp_path / name).write_text("")
+    files = lambda m, s: [f.name for f in nav._method_files(tmp_path, m, s)]
+    assert files("tfl_reactive", ".npz") == [
+        "tfl_reactive_000.npz", "tfl_reactive_999.npz", "tfl_reactive_1000.npz"]  # fmt: skip
+    assert set(files("tfl_reactive", "*")) == set(names[:5])
+    assert files("tfl_reactive", "*")[-1] == "tfl_reactive_planner.json"
+    assert set(files("tfl_reactive_gain", "*")) == set(names[5:])
 
 
 def test_resume_refuses_another_protocol(table1):

@@ -19,18 +19,23 @@ Scoring (per episode, :mod:`bfsop_jax.metrics`):
 * L_opt: the shortest open path from the start through the *found* instances'
   verification points, with geodesic distances on the true map. An instance's
   verification point is the traversable planning cell within the verification distance
-  of its centre that is nearest to the start (geodesically); exact Held-Karp up to 12
-  instances;
+  of its centre that is nearest to the start (geodesically); exact Held-Karp up to 18
+  instances, an iterated local search above (:func:`bfsop_jax.metrics.optimal_visit_length`);
 * path length, mode switches (tours started), planner calls, and the revisited-path
   fraction (share of the path spent entering cells already visited: the ping-pong).
 
 Episodes run batched (``jax.vmap``) in chunks of ``batch`` episodes; each chunk's records
 are written atomically, so an interrupted evaluation resumes from the finished chunks.
+Each chunk also records which scoring (:data:`SCORING`) its L_opt and PPL come from; a
+finished chunk of an older scoring is re-scored from its saved paths (start, found
+instances) when the run is resumed, never run again, so one ``results.json`` never mixes
+two ways of computing L_opt.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -77,6 +82,7 @@ __all__ = [
     "LABELS",
     "METHODS",
     "Episode",
+    "SCORING",
     "HouseSet",
     "evaluate_navigation",
     "make_strategy",
@@ -87,6 +93,10 @@ __all__ = [
 ]
 
 METHODS: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive", "bfsop_vns", "bfsop_st")
+# How episodes are scored: raised whenever L_opt (and so PPL) would come out differently for
+# the same rollout. 1: Held-Karp up to 12 found instances, one plain local search above.
+# 2: Held-Karp up to 18, an iterated local search above.
+SCORING = 2
 BASELINES: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive")
 # Rows run on request only (``--methods``), never a "best baseline": TFL-Reactive with
 # BF-SOP's explorer shows how much of BF-SOP's margin is its exploration mode's.
@@ -273,6 +283,79 @@ def verification_matrix(
     return distance_matrix(blocked, points, jnp.concatenate([jnp.ones(1, bool), valid]), preset)
 
 
+@functools.cache
+def _geometry(preset: Preset) -> Any:
+    """Jitted, vmapped :func:`verification_matrix` (one program per preset)."""
+    return jax.jit(jax.vmap(lambda h, s, t, v: verification_matrix(h, s, t, v, preset)))
+
+
+def _target_slots(
+    episodes: Sequence[Episode], houses: HouseSet
+) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Each episode's target object slots, and the same padded for :func:`_geometry`.
+
+    Returns the per-episode slot arrays, and ``tgt`` int32 [E, W] / ``ok`` bool [E, W]
+    with W a multiple of 8 (few distinct shapes, few compilations).
+    """
+    targets = [
+        np.flatnonzero(np.asarray(houses[ep.house].object_category) == ep.category)
+        for ep in episodes
+    ]
+    width = 8 * math.ceil(max([1, *(len(t) for t in targets)]) / 8)
+    tgt = np.zeros((len(episodes), width), np.int32)
+    ok = np.zeros((len(episodes), width), bool)
+    for i, idx in enumerate(targets):
+        tgt[i, : len(idx)], ok[i, : len(idx)] = idx, True
+    return targets, tgt, ok
+
+
+def _l_opt(dist: np.ndarray, found_mask: np.ndarray) -> float:
+    """Metres: the shortest open path from the start (row 0 of ``dist``, [S+1, S+1])
+    through the found targets (``found_mask`` bool [S]); 0 with none found."""
+    sel = np.concatenate([[0], 1 + np.flatnonzero(found_mask)])
+    return float(metrics.optimal_visit_length(dist[np.ix_(sel, sel)])) if len(sel) > 1 else 0.0
+
+
+def _found_slots(paths: Any, i: int, targets: np.ndarray, house: House) -> np.ndarray:
+    """The found target slots of episode ``i`` of a saved chunk: stored since scoring 2,
+    recovered from the found instances' centres (stored exactly) before."""
+    if f"{i}_found_slots" in paths:
+        return np.asarray(paths[f"{i}_found_slots"], np.int64)
+    centres = np.asarray(house.object_xy)[targets].astype(np.float32)
+    taken = np.zeros(len(targets), bool)
+    for xy in np.asarray(paths[f"{i}_found"], np.float32):
+        hit = np.flatnonzero(np.all(centres == xy, axis=1) & ~taken)
+        if not len(hit):
+            raise ValueError(f"episode {i}: a found instance at {xy.tolist()} is no target")
+        taken[hit[0]] = True
+    return targets[taken]
+
+
+def _rescore_chunk(
+    records: list[dict[str, Any]], paths: Any, chunk: Sequence[Episode], houses: HouseSet
+) -> list[dict[str, Any]]:
+    """``records`` of a finished chunk with L_opt, PPL and PPL at the end recomputed by
+    today's scoring from its saved ``paths`` (the start is each path's first point)."""
+    targets, tgt, ok = _target_slots(chunk, houses)
+    start = np.stack([np.asarray(paths[f"{i}_xy"][0], np.float32) for i in range(len(chunk))])
+    house_batch = _stack([houses[ep.house] for ep in chunk])
+    dist = np.asarray(_geometry(houses.preset)(house_batch, jnp.asarray(start), tgt, ok))
+    out = []
+    for i, (ep, r) in enumerate(zip(chunk, records, strict=True)):
+        found_mask = np.isin(targets[i], _found_slots(paths, i, targets[i], houses[ep.house]))
+        if (r["house_seed"], r["category"]) != (ep.house, TARGET_NAMES[ep.category]) or (
+            int(found_mask.sum()) != r["found"]
+        ):
+            raise ValueError(f"episode {i}: the saved records do not match the protocol")
+        l_opt = _l_opt(dist[i], found_mask)
+        out.append(dict(
+            r, l_opt=l_opt,
+            ppl=float(metrics.ppl(r["found"], r["total"], r["path_length"], l_opt)),
+            ppl_end=float(metrics.ppl(r["found"], r["total"], r["path_length_end"], l_opt)),
+        ))  # fmt: skip
+    return out
+
+
 # -- running episodes --------------------------------------------------------------------
 
 
@@ -291,9 +374,7 @@ class _Runner:
         self.roll = jax.jit(
             jax.vmap(lambda s, m: continue_rollout(s, m, strategy, preset, _SEGMENT))
         )
-        self.geometry = jax.jit(
-            jax.vmap(lambda h, s, t, v: verification_matrix(h, s, t, v, preset))
-        )
+        self.geometry = _geometry(preset)
 
         self.compile_s = 0.0
         self._compiled: Any = None
@@ -358,26 +439,14 @@ def _episode_records(
 ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
     """Per-episode metrics of one chunk, plus the compact paths kept for figures."""
     preset = runner.preset
-    n = len(episodes)
-    targets = []
-    width = 1
-    for ep in episodes:
-        idx = np.flatnonzero(np.asarray(houses[ep.house].object_category) == ep.category)
-        targets.append(idx)
-        width = max(width, len(idx))
-    width = 8 * math.ceil(width / 8)  # few distinct shapes, few compilations
-    tgt = np.zeros((n, width), np.int32)
-    ok = np.zeros((n, width), bool)
-    for i, idx in enumerate(targets):
-        tgt[i, : len(idx)], ok[i, : len(idx)] = idx, True
+    targets, tgt, ok = _target_slots(episodes, houses)
     house_batch = _stack([houses[ep.house] for ep in episodes])
     start_xy = np.asarray(initial.pose)[:, :2]
     dist = np.asarray(runner.geometry(house_batch, jnp.asarray(start_xy), tgt, ok))
     records, paths = [], {}
     for i, ep in enumerate(episodes):
         found_mask = np.asarray(final.found[i])[targets[i]]
-        sel = np.concatenate([[0], 1 + np.flatnonzero(found_mask)])
-        l_opt = metrics.optimal_visit_length(dist[i][np.ix_(sel, sel)]) if len(sel) > 1 else 0.0
+        l_opt = _l_opt(dist[i], found_mask)
         found, total = int(found_mask.sum()), len(targets[i])
         initial_found = int(np.asarray(initial.found[i]).sum())
         l_last, l_end = _last_find_length(initial_found, traj, i)
@@ -419,6 +488,7 @@ def _episode_records(
         paths[f"{i}_touring"] = np.concatenate([[False], tour])
         obj_xy = np.asarray(houses[ep.house].object_xy)
         paths[f"{i}_found"] = obj_xy[targets[i][found_mask]].astype(np.float32)
+        paths[f"{i}_found_slots"] = targets[i][found_mask].astype(np.int32)
     return records, paths
 
 
@@ -459,6 +529,42 @@ def _missed_targets(
 
 def _write_json(path: Path, obj: Any) -> None:
     files.write_json(path, obj, sort_keys=False)
+
+
+def _method_files(folder: Path, method: str, suffix: str) -> list[Path]:
+    """A method's files in ``episodes/`` (its numbered chunks in order, then its planner
+    latency), ``suffix`` one of ``".json"``, ``".npz"`` or ``"*"``; never another method's
+    whose name extends this one's (``tfl_reactive_gain`` for ``tfl_reactive``)."""
+    tail = lambda f: f.stem[len(method) + 1 :]
+    mine = [
+        f for f in folder.glob(f"{method}_*{'' if suffix == '*' else suffix}")
+        if tail(f) == "planner" or tail(f).isdigit()
+    ]
+    chunk = lambda f: int(tail(f)) if tail(f).isdigit() else math.inf  # planner last
+    return sorted(mine, key=chunk)
+
+
+def _finished_chunk(
+    done_file: Path, chunk: Sequence[Episode], houses: HouseSet
+) -> list[dict[str, Any]] | None:
+    """The records of a finished chunk, re-scored first (and saved so) when they come from
+    an older :data:`SCORING`; None when the chunk is to run (not finished, or of an older
+    scoring without its paths file)."""
+    if not done_file.exists():
+        return None
+    saved = json.loads(done_file.read_text())
+    if saved.get("scoring", 1) != SCORING:
+        paths_file = done_file.with_suffix(".npz")
+        if not paths_file.exists():
+            return None
+        try:
+            with np.load(paths_file) as paths:
+                saved["episodes"] = _rescore_chunk(saved["episodes"], paths, chunk, houses)
+        except ValueError as err:
+            raise ValueError(f"cannot re-score {done_file}: {err}") from None
+        saved["scoring"] = SCORING
+        _write_json(done_file, saved)
+    return saved["episodes"]
 
 
 def _planner_latency_ms(
@@ -558,7 +664,7 @@ def evaluate_navigation(
         old = before.get("strategies", {})
         for m in methods:
             if m in old and old[m] != described["strategies"][m]:
-                for f in (out / "episodes").glob(f"{m}_*"):
+                for f in _method_files(out / "episodes", m, "*"):
                     f.unlink()
         described["strategies"] = {**old, **described["strategies"]}
     _write_json(saved, described)
@@ -575,8 +681,9 @@ def evaluate_navigation(
         method_records: list[dict[str, Any]] = []
         for j, chunk in enumerate(chunks):
             done_file = out / "episodes" / f"{method}_{j:03d}.json"
-            if done_file.exists():
-                method_records.extend(json.loads(done_file.read_text())["episodes"])
+            reused = _finished_chunk(done_file, chunk, houses)
+            if reused is not None:
+                method_records.extend(reused)
                 bar.update(len(chunk))
                 continue
             runner = runner or _Runner(strategy, preset, prior)
@@ -605,7 +712,7 @@ def evaluate_navigation(
                 out / "episodes" / f"{method}_{j:03d}.npz",
                 lambda f, paths=paths: np.savez_compressed(f, **paths), mode="wb",
             )
-            _write_json(done_file, {"episodes": records, "wall_s": wall})
+            _write_json(done_file, {"episodes": records, "wall_s": wall, "scoring": SCORING})
             method_records.extend(records)
             bar.update(len(chunk))
         bar.close()
@@ -634,6 +741,7 @@ def evaluate_navigation(
     result = {
         "preset": preset.name,
         "budget_m": preset.budget_m,
+        "scoring": SCORING,
         "methods": summarise(all_records, methods),
         "timings": timings,
         "episodes": all_records,
@@ -760,7 +868,7 @@ def load_paths(out_dir: str | os.PathLike, method: str) -> list[dict[str, np.nda
     [F, 2]}]`` (positions in metres; ``found``: the verified instances)."""
     out = Path(out_dir) / "episodes"
     paths = []
-    for f in sorted(out.glob(f"{method}_*.npz")):
+    for f in _method_files(out, method, ".npz"):
         with np.load(f) as z:
             n = len([k for k in z.files if k.endswith("_xy")])
             paths += [
