@@ -27,6 +27,7 @@ combination compiles once; later calls with the same shapes reuse the program.
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 from pathlib import Path
 from typing import Any
@@ -137,6 +138,18 @@ class StrategicPolicy:
     def params(self) -> Any:
         """The model's ``nnx.Param`` state (e.g. ``train(..., init_params=)`` to fine-tune)."""
         return self._params
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        """16 hex digits that name this model: a hash of its configuration, capacity and
+        every parameter's bytes (the same on any device; another checkpoint, another
+        fingerprint). Evaluations record it to tell models apart."""
+        digest = hashlib.sha256(repr((self.config, self.num_nodes, self.num_sets)).encode())
+        for path, leaf in jax.tree_util.tree_leaves_with_path(self._params):
+            value = np.asarray(leaf)
+            digest.update(f"{jax.tree_util.keystr(path)}{value.dtype}{value.shape}".encode())
+            digest.update(np.ascontiguousarray(value).tobytes())
+        return digest.hexdigest()[:16]
 
     @property
     def model(self) -> StrategicTransformer:

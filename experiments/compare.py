@@ -35,9 +35,11 @@ def _bin_name(lo: int, hi: int) -> str:
     return f"{lo}+" if hi >= 10**9 else f"{lo}-{hi}"
 
 
-def load(spec: str) -> dict[tuple[int, str], dict]:
-    """``RUN:METHOD[+RUN:METHOD...]`` -> {(house seed, category): episode record}."""
+def load(spec: str) -> tuple[dict[tuple[int, str], dict], dict[str, dict]]:
+    """``RUN:METHOD[+RUN:METHOD...]`` -> ({(house seed, category): episode record}, {run
+    directory: how it was scored}). The joined runs must hold disjoint episodes."""
     out: dict[tuple[int, str], dict] = {}
+    scored: dict[str, dict] = {}
     for part in spec.split("+"):
         run, sep, method = part.rpartition(":")
         if not sep or not run or not method:
@@ -45,17 +47,38 @@ def load(spec: str) -> dict[tuple[int, str], dict]:
         path = Path(run) / "results.json"
         if not path.is_file():
             raise ValueError(f"{path}: no results.json (run experiments.evaluate first)")
-        episodes = [e for e in json.loads(path.read_text())["episodes"] if e["method"] == method]
+        result = json.loads(path.read_text())
+        # runs written before the scoring was recorded were scored the first way
+        scored[run] = {k: result.get(k, 1 if k == "scoring" else None)
+                       for k in ("preset", "budget_m", "scoring")}  # fmt: skip
+        episodes = [e for e in result["episodes"] if e["method"] == method]
         if not episodes:
             raise ValueError(f"{path}: no episodes of method {method!r}")
         for e in episodes:
-            out[(int(e["house_seed"]), str(e["category"]))] = e
-    return out
+            key = (int(e["house_seed"]), str(e["category"]))
+            if key in out:
+                raise ValueError(f"{part}: episode {key} is also in an earlier run of {spec!r} "
+                                 "(`+` joins runs on disjoint houses)")  # fmt: skip
+            out[key] = e
+    return out, scored
+
+
+def _same_scoring(scored: dict[str, dict]) -> None:
+    """Refuse runs of other presets, budgets or PPL scorings."""
+    for field, hint in (("preset", ""), ("budget_m", ""), ("scoring", (
+            "; run the older one's experiments.evaluate command again (same --out) to "
+            "re-score it"))):  # fmt: skip
+        values = {run: s[field] for run, s in scored.items()}
+        if len(set(map(str, values.values()))) > 1:
+            seen = ", ".join(f"{v} in {run}" for run, v in values.items())
+            raise ValueError(f"the runs differ in {field} ({seen}){hint}")
 
 
 def shared(specs: list[str]) -> tuple[list[dict], list[tuple[int, str]]]:
     """The runs of ``specs`` (loaded once) and the episodes they all hold, sorted."""
-    runs = [load(s) for s in specs]
+    loaded = [load(s) for s in specs]
+    _same_scoring({run: s for _, scored in loaded for run, s in scored.items()})
+    runs = [episodes for episodes, _ in loaded]
     keys = sorted(set.intersection(*(set(r) for r in runs)))
     if not keys:
         raise ValueError("the runs share no episode (house, category)")
@@ -87,9 +110,12 @@ def table(
         f"| method | PPL | progress | - {labels[0]} [95% CI over houses] | ratio | {head} |",
         "|---|---|---|---|---|" + "---|" * len(BINS),
     ]
+    several = len(set(houses.tolist())) > 1  # an interval over houses needs two or more
     for i, label in enumerate(labels):
         if i == 0:
             diff = "reference"
+        elif not several:
+            diff = "- (one house)"
         else:
             d, lo, hi = paired_bootstrap_ci(ppl[i], ppl[0], groups=houses)
             diff = f"{d:+.3f} [{lo:+.3f}, {hi:+.3f}]"
@@ -117,7 +143,7 @@ def account_means(runs: list[dict], keys: list, labels: list[str]) -> dict[str, 
     out = {}
     for label, run in zip(labels, runs, strict=True):
         eps = [run[k] for k in keys]
-        if all(f in eps[0] for f in ACCOUNT):
+        if all(f in e for e in eps for f in ACCOUNT):
             out[label] = np.array([np.mean([e[f] for e in eps]) for f in ACCOUNT])
     return out
 
@@ -157,14 +183,16 @@ def _accounting(runs: list[dict], keys: list, labels: list[str]) -> list[str]:
     means = account_means(runs, keys, labels)
     for label, run in zip(labels, runs, strict=True):
         eps = [run[k] for k in keys]
-        if label not in means or not all(f in eps[0] for f in ("touring_share", "found_touring")):
+        if label not in means or not all(
+            f in e for e in eps for f in ("touring_share", "found_touring")
+        ):
             continue
         cells = " | ".join(f"{v:.2f}" for v in means[label])
         share = np.mean([e["touring_share"] for e in eps])
         toured = sum(e["found_touring"] for e in eps) / max(sum(e["found"] for e in eps), 1)
         # runs recorded before the field existed show a blank
         unentered = (f"{np.mean([e['missed_unentered'] for e in eps]):.2f}"
-                     if "missed_unentered" in eps[0] else "")  # fmt: skip
+                     if all("missed_unentered" in e for e in eps) else "")  # fmt: skip
         rows.append(f"| {label} | {cells} | {unentered} | {share:.2f} | {toured:.2f} |")
     if not rows:
         return []

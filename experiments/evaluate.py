@@ -105,6 +105,9 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
     if unknown or not methods:
         _fail(f"unknown method {unknown[0] if unknown else '(none)'!r}; "
               f"methods are {', '.join(known)}")  # fmt: skip
+    twice = [m for i, m in enumerate(methods) if m in methods[:i]]
+    if twice:
+        _fail(f"--methods lists {twice[0]!r} twice")
     checked["methods"] = methods
     if args.scan:
         keys = {_settings_key(m) for m in methods}
@@ -119,8 +122,16 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
             checked["categories"] = [target_id(c.strip()) for c in args.categories.split(",")]
         except ValueError as err:
             _fail(str(err))
-    default = f"{VALIDATION_SEED_START}:{VALIDATION_SEED_START + 4}" if args.scan else (
-        f"{EVAL_SEED_START}:{EVAL_SEED_START + 10}")  # fmt: skip
+        cats = checked["categories"]
+        twice = [k for i, k in enumerate(cats) if k in cats[:i]]
+        if twice:
+            _fail(f"--categories lists {TARGET_NAMES[twice[0]]} twice")
+    if args.procthor_dir is not None:
+        default = "0:10"  # file indices
+    elif args.scan:
+        default = f"{VALIDATION_SEED_START}:{VALIDATION_SEED_START + 4}"
+    else:
+        default = f"{EVAL_SEED_START}:{EVAL_SEED_START + 10}"
     try:
         checked["houses"] = parse_seed_range(args.house_seeds or default)
     except ValueError as err:
@@ -132,6 +143,10 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
         _fail("--batch must be at least 1")
     try:
         checked["settings"] = json.loads(args.settings) if args.settings else {}
+        if not isinstance(checked["settings"], dict) or not all(
+            isinstance(fields, dict) for fields in checked["settings"].values()
+        ):
+            raise ValueError('expected a JSON object of objects, e.g. {"bfsop": {...}}')
         for name, fields in checked["settings"].items():
             if name not in ("bfs_global", "tfl_reactive", "bfsop", "transformer", "explorer"):
                 raise ValueError(
@@ -154,7 +169,9 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
     except ValueError as err:
         _fail(str(err))
     if args.procthor_dir is not None and checked["houses"].start >= len(checked["house_set"]):
-        _fail(f"--house-seeds {args.house_seeds}: the folder has {len(checked['house_set'])} files")
+        r = checked["houses"]
+        _fail(f"--house-seeds {r.start}:{r.stop}: the folder has {len(checked['house_set'])} "
+              "files")  # fmt: skip
     return checked
 
 
@@ -191,14 +208,20 @@ def run_table1(args: argparse.Namespace, c: dict[str, Any], out: Path) -> dict[s
 def run_scan(args: argparse.Namespace, c: dict[str, Any], out: Path) -> list[dict[str, Any]]:
     """Every grid setting of each baseline on the validation houses, ranked by PPL."""
     houses = c["house_set"]
-    episodes = nav.protocol_episodes(houses, list(c["houses"]), c["categories"])
+    ids = [h for h in c["houses"] if h < len(houses)]
+    episodes = nav.protocol_episodes(houses, ids, c["categories"])
+    if not episodes:
+        _fail("no episode: no house holds any of the categories")
     rows = []
     for method in c["scan"]:
+        key = _settings_key(method)
         for setting in SCAN_GRID[method]:
             tag = "_".join(f"{k}{v:g}" for k, v in setting.items())
+            # the grid's values over the user's --settings (the rest of them still hold)
+            settings = {**c["settings"], key: {**c["settings"].get(key, {}), **setting}}
             result = nav.evaluate_navigation(
                 [method], episodes, houses, out / f"{method}_{tag}",
-                settings={_settings_key(method): setting}, policy=c["policy"],
+                settings=settings, policy=c["policy"],
                 batch=args.batch, progress=not args.no_progress, mesh=_mesh(args.devices),
             )  # fmt: skip
             s = result["methods"][method]

@@ -53,8 +53,16 @@ def recover_houses(
     name = result.get("preset", preset)
     if name is None:
         raise ValueError("an evaluation without its preset: pass --preset to re-pose its tasks")
+    if name not in distill.PRESETS:
+        raise ValueError(f"unknown preset {name!r}; presets are {', '.join(distill.PRESETS)}")
     config = distill.PRESETS[name]
-    lo, hi = result["house_seeds"]
+    seeds = result.get("house_seeds")
+    if not (isinstance(seeds, list) and len(seeds) == 2 and all(isinstance(x, int) for x in seeds)):
+        raise ValueError(f"house_seeds must be one range [lo, hi] to re-pose tasks, got {seeds!r}")
+    lo, hi = seeds
+    rewards = result.get("planners", {}).get("greedy_insertion", {}).get("rewards")
+    if rewards is None or "instances" not in result:
+        raise ValueError("no per-instance greedy insertion rewards to check re-posed tasks on")
     tasks = result.get("tasks_per_house", config.eval_tasks)
     instances, owners = distill.eval_instances(config, lo, hi, tasks, progress=progress)
     if owners.shape[0] != result["instances"]:
@@ -62,7 +70,7 @@ def recover_houses(
             f"re-posed {owners.shape[0]} instances of houses {lo}..{hi - 1}, the evaluation "
             f"has {result['instances']}: not the same tasks"
         )
-    recorded = np.asarray(result["planners"]["greedy_insertion"]["rewards"])
+    recorded = np.asarray(rewards)
     replanned = np.asarray(
         [float(solve_greedy(solver_eval.take(instances, i)).reward) for i in range(owners.shape[0])]
     )

@@ -76,3 +76,27 @@ def test_compare_names_bad_input(tmp_path, capsys):
     assert "no results.json" in capsys.readouterr().err
     assert compare.main([a]) == 2
     assert "expected RUN_DIR:METHOD" in capsys.readouterr().err
+
+
+def test_compare_refuses_runs_scored_another_way_and_overlapping_joins(tmp_path, capsys):
+    """Runs of another scoring (L_opt), preset or budget are not compared; ``+`` joins
+    disjoint runs only; with one shared house there is no interval over houses."""
+    a = _run(tmp_path, "a", "tfl_reactive", (0.1, 0.2, 0.3))
+    b = _run(tmp_path, "b", "bfsop_st", (0.2, 0.2, 0.5))
+    path = tmp_path / "b" / "results.json"
+    saved = json.loads(path.read_text())
+    path.write_text(json.dumps(dict(saved, scoring=2)))  # `a` predates the field: scoring 1
+    assert compare.main([f"{a}:tfl_reactive", f"{b}:bfsop_st"]) == 2
+    err = capsys.readouterr().err
+    assert "the runs differ in scoring (1 in" in err and "to re-score it" in err
+    path.write_text(json.dumps(dict(saved, preset="paper")))
+    assert compare.main([f"{a}:tfl_reactive", f"{b}:bfsop_st"]) == 2
+    assert "the runs differ in preset (None in" in capsys.readouterr().err
+    path.write_text(json.dumps(saved))
+    c = _run(tmp_path, "c", "tfl_reactive", (0.4,), houses=(3,), totals=(12,))
+    assert compare.main([f"{a}:tfl_reactive+{c}:tfl_reactive", f"{b}:bfsop_st"]) == 2
+    assert "episode (3, 'Book') is also in an earlier run" in capsys.readouterr().err
+    one = _run(tmp_path, "one", "tfl_reactive", (0.1,), houses=(2,), totals=(4,))
+    table, _, _ = compare.compare([f"{one}:tfl_reactive", f"{b}:bfsop_st"], ["T", "B"])
+    assert table.startswith("1 shared episodes, 1 houses")
+    assert "| B | 0.200 | 0.400 | - (one house) | 2.00x |" in table

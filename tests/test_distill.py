@@ -162,13 +162,37 @@ def test_pooled_evaluations_equal_one_evaluation_of_all_houses(
     text = (tmp_path / "pooled" / "tables.md").read_text()
     assert "6 held-out instances of houses 0..3, 4..5" in text and f"{d:+.3f}" in text
     assert (tmp_path / "pooled" / "paired.png").stat().st_size > 0  # runs and pool, drawn
+    # a pool pools again: the pooled summary of run0 + run1 with a third range
+    third = {**parts[1], "house_seeds": [6, 8], "instance_houses": houses[4:6]}
+    again = solver_eval.pool_summaries([pooled, third])
+    assert again["house_seeds"] == [[0, 4], [4, 6], [6, 8]] and again["instances"] == 8
+    other_options = {"options": {"two_opt": False}}
     for bad, match in [
         ([parts[0], parts[0]], "overlapping house ranges"),
+        ([pooled, parts[1]], "overlapping house ranges"),
         ([parts[0], {**parts[1], "checkpoint": "other"}], "different checkpoints"),
         ([parts[0], {**parts[1], "preset": "paper"}], "different presets"),
-    ]:
+        ([{**parts[0], "tasks_per_house": 24}, {**parts[1], "tasks_per_house": 2}],
+         "different tasks_per_houses"),
+        ([parts[0], {**parts[1], "planners": {**parts[1]["planners"], "transformer+2opt": {
+            **parts[1]["planners"]["transformer+2opt"], **other_options}}}],
+         "'transformer\\+2opt' ran with different options"),
+        ([parts[0], {**parts[1], "house_seeds": "4:6"}], "house_seeds must be"),
+    ]:  # fmt: skip
         with pytest.raises(ValueError, match=match):
             solver_eval.pool_summaries(bad)
+    for broken, match in [
+        ({**parts[1], "preset": "huge"}, "unknown preset 'huge'"),
+        ({k: v for k, v in parts[1].items() if k != "house_seeds"}, "house_seeds must be one"),
+        ({**parts[1], "planners": {}}, "no per-instance greedy insertion rewards"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            pool_eval.recover_houses(broken, progress=False)
+    one = solver_eval.take(batch, slice(0, 1))
+    with pytest.raises(ValueError, match="the teacher has 1 plans and 1 latencies for 2"):
+        solver_eval.evaluate_solvers(policy, solver_eval.take(batch, slice(0, 2)),
+                                     teacher=solver_eval.evaluate_teacher(one, progress=False,
+                                     vns_kwargs=kw["vns_kwargs"]), **kw)  # fmt: skip
     with pytest.raises(SystemExit):
         pool_eval.main([str(tmp_path), "--out", str(tmp_path / "x")])  # no solver_eval.json
 
@@ -176,6 +200,13 @@ def test_pooled_evaluations_equal_one_evaluation_of_all_houses(
 def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
     mass = solver_eval.decoder_distance_mass(policy, batch, batch=4)
     assert mass.shape == (2, 5)
+    # the current node is the node chosen at the step before; for this (append) decoder
+    # that is the plan's previous node
+    trace = jax.device_get(policy.trace(batch))
+    nodes, choices = np.asarray(trace.solution.nodes), np.asarray(trace.choices)
+    t = min(nodes.shape[1] - 1, choices.shape[1])
+    real = nodes[:, 1 : t + 1] >= 0
+    np.testing.assert_array_equal(nodes[:, 1 : t + 1][real], choices[:, :t][real])
     np.testing.assert_allclose(mass.sum(axis=1), 1.0, atol=1e-5)
     assert (mass >= 0).all()
     plot_distance_mass(mass, tmp_path / "mass.png")

@@ -181,6 +181,11 @@ def test_resume_refuses_another_protocol(table1):
         ("--settings", '{"transformer": {"best_of": 0}}', "best_of must be a positive int"),
         ("--settings", '{"explorer": {"gain": 4}}', "unexpected keyword argument 'gain'"),
         ("--methods", "fbe,tfl_gain", "unknown method 'tfl_gain'; methods are fbe,"),
+        ("--methods", "fbe,bfsop_st,fbe", "--methods lists 'fbe' twice"),
+        ("--categories", "Apple,HousePlant,Apple", "--categories lists Apple twice"),
+        ("--settings", "null", "--settings: expected a JSON object of objects"),
+        ("--settings", "[1]", "--settings: expected a JSON object of objects"),
+        ("--settings", '{"bfsop": 3}', "--settings: expected a JSON object of objects"),
     ],
 )
 def test_bad_input_fails_before_running(tmp_path, capsys, flag, value, message):
@@ -201,9 +206,16 @@ def test_scan_runs_only_the_grids_of_the_given_methods(tmp_path, monkeypatch):
     monkeypatch.setitem(evaluate.SCAN_GRID, "bfs_global", evaluate.SCAN_GRID["bfs_global"][1:3])
     args = ["--scan", "--preset", "smoke", "--house-seeds", "2000000:2000001", "--categories",
             "HousePlant", "--batch", "1", "--no-progress"]  # fmt: skip
-    rows = evaluate.main(args + ["--methods", "bfs_global", "--out", str(tmp_path)])
+    mine = {"explorer": {"patience": 3}, "bfs_global": {"fraction": 0.9, "max_attempts": 2}}
+    rows = evaluate.main(args + ["--methods", "bfs_global", "--out", str(tmp_path),
+                                 "--settings", json.dumps(mine)])  # fmt: skip
     assert {r["method"] for r in rows} == {"bfs_global"}
     grid = evaluate.SCAN_GRID["bfs_global"]
+    for setting in grid:  # each grid value over the user's settings, the rest kept
+        run = tmp_path / f"bfs_global_fraction{setting['fraction']:g}"
+        used = json.loads((run / "protocol.json").read_text())["settings"]
+        own = {"fraction": setting["fraction"], "max_attempts": 2}
+        assert used == {"explorer": {"patience": 3}, "bfs_global": own}
     assert sorted(map(json.dumps, (r["setting"] for r in rows))) == sorted(map(json.dumps, grid))
     best = json.loads((tmp_path / "scan.json").read_text())["best"]
     assert best == {"bfs_global": max(rows, key=lambda r: r["ppl_mean"])["setting"]}
@@ -264,6 +276,18 @@ def test_explorer_settings_reach_every_method(method):
     assert (kept.gain_weight_m, kept.patience) == (own, 3)
     got = explorer({"explorer": {"gain_weight_m": 4.0, "patience": 3}})
     assert (got.gain_weight_m, got.patience) == (4.0, 3)
+
+
+def test_the_transformer_method_is_described_by_its_model():
+    """Resuming with another checkpoint must not reuse the Transformer's chunks: the
+    method's description (compared on resume) names the model's weights."""
+    from bfsop_jax.policy import StrategicPolicy
+
+    demo, paper = StrategicPolicy.load("demo"), StrategicPolicy.load("paper")
+    describe = lambda p: nav.describe_strategy(nav.make_strategy("bfsop_st", p, None))
+    assert describe(demo) == describe(StrategicPolicy.load("demo"))
+    assert describe(demo) != describe(paper) and paper.fingerprint in describe(paper)
+    assert describe(demo).replace(demo.fingerprint, paper.fingerprint) == describe(paper)
 
 
 def test_ablation_is_tfl_reactive_with_bfsop_explorer():

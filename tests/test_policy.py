@@ -135,6 +135,20 @@ def test_load_latest_epoch_checkpoint(tmp_path):
 
 
 # -- planning --------------------------------------------------------------------------------
+def test_fingerprint_names_the_weights(run_dir, policy):
+    """The same weights loaded again give the same fingerprint; one changed weight, or
+    another capacity, another."""
+    again = StrategicPolicy.load(run_dir)
+    assert again.fingerprint == policy.fingerprint and len(policy.fingerprint) == 16
+    model = StrategicTransformer(CONFIG, rngs=nnx.Rngs(0))
+    nnx.update(model, jax.tree_util.tree_map(np.array, policy.params))
+    assert StrategicPolicy(model, NODES, SETS).fingerprint == policy.fingerprint
+    assert StrategicPolicy(model, NODES + 1, SETS).fingerprint != policy.fingerprint
+    kernel = model.decoder.project_glimpse.kernel
+    kernel[...] = jnp.asarray(kernel[...]).at[0, 0].add(1e-3)
+    assert StrategicPolicy(model, NODES, SETS).fingerprint != policy.fingerprint
+
+
 def test_instance_larger_than_the_model(policy):
     big = random_instance(0, num_sets=8, viewpoints=4)  # 33 nodes, 9 sets
     with pytest.raises(ValueError, match="at most 25 nodes and 9 sets"):

@@ -235,8 +235,9 @@ def make_strategy(
 
 
 def describe_strategy(strategy: Any) -> str:
-    """A stable text of a strategy's class, configuration, explorer and planner (not its
-    weights)."""
+    """A stable text of a strategy's class, configuration, explorer and planner (a model
+    planner's model by its :attr:`~bfsop_jax.policy.StrategicPolicy.fingerprint`), so a
+    resumed evaluation can tell whether a method's finished chunks still hold."""
     parts = [type(strategy).__name__, repr(getattr(strategy, "config", None))]
     explorer = getattr(strategy, "explorer", None)
     if explorer is not None:
@@ -244,7 +245,8 @@ def describe_strategy(strategy: Any) -> str:
     planner = getattr(strategy, "planner", None)
     if planner is not None:
         fields = {f.name: getattr(planner, f.name) for f in dataclasses.fields(planner)}
-        fields.pop("policy", None)
+        if "policy" in fields:
+            fields["policy"] = getattr(fields["policy"], "fingerprint", None)
         parts.append(f"{type(planner).__name__}{fields}")
     return " ".join(parts)
 
@@ -651,15 +653,19 @@ def evaluate_navigation(
     saved = out / "protocol.json"
     if saved.exists():
         before = json.loads(saved.read_text())
-        keys = ("preset", "budget_m", "episodes", "settings")
-        same = {k: before.get(k) for k in keys}
-        if same != {k: described[k] for k in same}:
+        keys = ("preset", "budget_m", "episodes", "settings", "procthor_dir")
+        if any(before.get(k) != described.get(k) for k in keys):
             raise ValueError(
-                f"{out} holds a different evaluation (preset, budget, episodes or settings "
-                "differ); use another --out directory"
+                f"{out} holds a different evaluation (preset, budget, episodes, settings or "
+                "house files differ); use another --out directory"
             )
         described["batch"] = before.get("batch", batch)
         batch = described["batch"]
+        if mesh is not None and batch % mesh_size(mesh):
+            raise ValueError(
+                f"{out} runs in chunks of {batch} episodes, which do not split over "
+                f"{mesh_size(mesh)} devices; resume it on a device count that divides {batch}"
+            )
         # chunks of a method whose strategy changed since (code defaults) are recomputed
         old = before.get("strategies", {})
         for m in methods:

@@ -25,6 +25,7 @@ each quintile is averaged over all steps, and over the first step alone.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import statistics
 import time
@@ -126,6 +127,21 @@ def paired_vs(
     return paired_bootstrap_ci(a, b, seed=seed, groups=groups)
 
 
+def _canonical(value: Any) -> str:
+    """A recorded value as text that ignores key order (read from JSON or not)."""
+    return json.dumps(value, sort_keys=True, default=str)
+
+
+def _house_ranges(seeds: Any) -> list[tuple[int, int]]:
+    """An evaluation's ``house_seeds``, ``[lo, hi]`` or a pooled list of them, as ranges."""
+    try:
+        if len(seeds) == 2 and all(isinstance(x, int) for x in seeds):
+            return [(int(seeds[0]), int(seeds[1]))]
+        return [(int(lo), int(hi)) for lo, hi in seeds]
+    except (TypeError, ValueError):
+        raise ValueError(f"house_seeds must be [lo, hi] or a list of them, got {seeds!r}") from None
+
+
 def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
     """One summary over evaluations of the same model on disjoint ranges of held-out houses.
 
@@ -139,24 +155,33 @@ def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
     speedup is recomputed from it. Per-instance houses (``instance_houses``) are pooled when
     every run has them.
 
+    A pooled summary pools again with further runs (its ``house_seeds`` is a list of
+    ranges).
+
     Raises:
-        ValueError: no runs, a run without house seeds or per-instance rewards, runs of different
-            checkpoints, presets or VNS configurations, or overlapping house ranges.
+        ValueError: no runs, a run without house seeds or per-instance rewards, runs of
+            different checkpoints, presets, VNS configurations or tasks per house, a planner
+            name run with different options, or overlapping house ranges.
     """
     if not results:
         raise ValueError("pool_summaries needs at least one evaluation")
     first = results[0]
     if not all("house_seeds" in r for r in results):
         raise ValueError("an evaluation without house_seeds cannot be pooled (whose houses?)")
-    for key in ("checkpoint", "vns_config", "preset"):
-        values = {repr(r[key]) for r in results if key in r}  # runs before "preset": any
+    for key in ("checkpoint", "vns_config", "preset", "tasks_per_house"):
+        values = {_canonical(r[key]) for r in results if key in r}  # runs before the key: any
         if len(values) > 1:
             raise ValueError(f"evaluations of different {key}s cannot be pooled: {values}")
-    ranges = sorted(tuple(r["house_seeds"]) for r in results)
+    ranges = sorted(rng for r in results for rng in _house_ranges(r["house_seeds"]))
     for (_, hi), (lo, _) in zip(ranges[:-1], ranges[1:], strict=True):
         if lo < hi:
             raise ValueError(f"evaluations with overlapping house ranges: {ranges}")
     names = [n for n in first["planners"] if all(n in r["planners"] for r in results)]
+    for name in names:
+        options = {_canonical(r["planners"][name]["options"]) for r in results
+                   if "options" in r["planners"][name]}  # fmt: skip
+        if len(options) > 1:
+            raise ValueError(f"planner {name!r} ran with different options: {options}")
     counts = np.asarray([r["instances"] for r in results], float)
     weights = counts / counts.sum()
     planners: dict[str, dict[str, Any]] = {}
@@ -166,6 +191,7 @@ def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
             raise ValueError(f"planner {name!r} lacks per-instance rewards in an evaluation")
         rewards = [x for row in rows for x in row["rewards"]]
         planners[name] = {
+            **({"options": rows[0]["options"]} if "options" in rows[0] else {}),
             "mean_reward": float(np.mean(rewards)),
             "mean_cost": float(np.dot(weights, [row["mean_cost"] for row in rows])),
             "latency_ms_single": float(np.dot(weights, [row["latency_ms_single"] for row in rows])),
@@ -183,6 +209,9 @@ def pool_summaries(results: list[dict[str, Any]]) -> dict[str, Any]:
         "house_seeds": [list(r) for r in ranges],
         "planners": planners,
     }
+    tasks = [r["tasks_per_house"] for r in results if "tasks_per_house" in r]
+    if tasks:
+        pooled["tasks_per_house"] = tasks[0]
     if all("instance_houses" in r for r in results):
         pooled["instance_houses"] = [h for r in results for h in r["instance_houses"]]
     return pooled
@@ -278,6 +307,11 @@ def evaluate_solvers(
     if teacher is None:
         teacher = evaluate_teacher(instances, vns_kwargs, progress)
     vns_sols, vns_ms = teacher
+    if len(vns_sols) != n or len(vns_ms) != n:
+        raise ValueError(
+            f"the teacher has {len(vns_sols)} plans and {len(vns_ms)} latencies for {n} "
+            "instances (it must come from evaluate_teacher on these instances)"
+        )
     vns_r = [float(s.reward) for s in vns_sols]
     vns_c = [float(s.cost) for s in vns_sols]
     result: dict[str, Any] = {
@@ -415,8 +449,11 @@ def write_tables(
 def decoder_distance_mass(policy, instances: SOPInstance, batch: int = 64) -> np.ndarray:
     """[2, 5] decoder node-probability mass per distance quintile: all steps, first step.
 
-    Quintile 0 holds the nearest fifth of the nodes allowed at that step (cost from the
-    current node); steps with fewer than five allowed nodes are skipped.
+    Quintile 0 holds the nearest fifth of the nodes allowed at that step, by cost from the
+    decoder's current node: the start at the first step, then the node chosen at the step
+    before (for the append decoder the plan's previous node; for the insertion decoder the
+    node last inserted, wherever in the route it went). Steps with fewer than five allowed
+    nodes are skipped.
     """
     n = _count(instances)
     sums, counts = np.zeros((2, 5)), np.zeros(2)
@@ -424,13 +461,14 @@ def decoder_distance_mass(policy, instances: SOPInstance, batch: int = 64) -> np
         chunk = take(instances, slice(lo, lo + batch))
         trace = jax.device_get(policy.trace(chunk))
         probs, allowed = np.asarray(trace.probs), np.asarray(trace.allowed)
-        nodes = np.asarray(trace.solution.nodes)
+        choices = np.asarray(trace.choices)  # [B, S]: the node chosen at each step, -1: END
+        start = np.asarray(chunk.start)
         cost = np.asarray(chunk.cost)
         b, steps, n1 = probs.shape
         n_inst = cost.shape[1]
         for i in range(b):
-            for t in range(min(steps, nodes.shape[1])):
-                last = nodes[i, t]
+            for t in range(steps):
+                last = start[i] if t == 0 else choices[i, t - 1]
                 if last < 0:
                     break
                 ok = np.flatnonzero(allowed[i, t, : min(n1 - 1, n_inst)])
