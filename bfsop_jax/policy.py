@@ -63,6 +63,17 @@ TWO_OPT_ITERS = 100  # bounded 2-opt (docs/design.md §7.5)
 MULTI_START_REFINE = 4  # multi-start: plans per instance refined (greedy + 3 best others)
 
 
+def model_fingerprint(config: ModelConfig, num_nodes: int, num_sets: int, params: Any) -> str:
+    """16 hex digits: a hash of a model's configuration, capacity (N nodes, K sets) and
+    every parameter's bytes; the same on any device, another for any other weights."""
+    digest = hashlib.sha256(repr((config, int(num_nodes), int(num_sets))).encode())
+    for path, leaf in jax.tree_util.tree_leaves_with_path(params):
+        value = np.asarray(leaf)
+        digest.update(f"{jax.tree_util.keystr(path)}{value.dtype}{value.shape}".encode())
+        digest.update(np.ascontiguousarray(value).tobytes())
+    return digest.hexdigest()[:16]
+
+
 class StrategicPolicy:
     """A trained Strategic Transformer with its decoding, 2-opt and budget gate."""
 
@@ -141,15 +152,9 @@ class StrategicPolicy:
 
     @functools.cached_property
     def fingerprint(self) -> str:
-        """16 hex digits that name this model: a hash of its configuration, capacity and
-        every parameter's bytes (the same on any device; another checkpoint, another
-        fingerprint). Evaluations record it to tell models apart."""
-        digest = hashlib.sha256(repr((self.config, self.num_nodes, self.num_sets)).encode())
-        for path, leaf in jax.tree_util.tree_leaves_with_path(self._params):
-            value = np.asarray(leaf)
-            digest.update(f"{jax.tree_util.keystr(path)}{value.dtype}{value.shape}".encode())
-            digest.update(np.ascontiguousarray(value).tobytes())
-        return digest.hexdigest()[:16]
+        """16 hex digits that name this model (:func:`model_fingerprint`). Evaluations and
+        resumed runs record it to tell models apart."""
+        return model_fingerprint(self.config, self.num_nodes, self.num_sets, self._params)
 
     @property
     def model(self) -> StrategicTransformer:

@@ -224,7 +224,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument(
         "--lr", type=float, default=None,
         help="override: Adam learning rate of behaviour cloning (the preset's: demo 1e-3, "
-        "paper 1e-4)",
+        "paper 1e-4; dagger: the rounds', default the base run's last)",
     )  # fmt: skip
     ap.add_argument(
         "--on-policy", type=float, default=None, metavar="W",
@@ -460,6 +460,42 @@ def _train_run_config(args, preset: DistillPreset, cfg: DataConfig, model_kw: di
     )
 
 
+def _check_kept_model(
+    run_dir: Path, config: RunConfig, meta: dict[str, Any], train_ds: Any,
+    seeds: tuple[int, ...], lrs: tuple[float, ...],
+) -> None:  # fmt: skip
+    """ValueError unless the model kept in ``run_dir`` was trained as this call would train
+    it: the same model and recipe, seeds and learning rates, data and initialisation."""
+    from bfsop_jax import checkpoint as ckpt
+    from bfsop_jax.training.bc import dataset_info
+
+    old = ckpt.read_config(run_dir)
+    same_json = lambda x: json.loads(json.dumps(x))
+    had = old.get("dataset", {})
+    checks = {
+        "model or training recipe": (old.get("run"), same_json(config.to_dict())),
+        "seeds or learning rates": (
+            sorted((r.get("seed"), r.get("lr")) for r in old.get("replicas", [])),
+            sorted((s, float(lr)) for s in seeds for lr in lrs),
+        ),
+        "data": (
+            [had.get("meta", {}).get("data_config"), had.get("train", {}).get("instances")],
+            same_json([meta["data_config"], dataset_info(train_ds)["instances"]]),
+        ),
+        "--extra-data": (
+            [e.get("data_config") for e in had.get("meta", {}).get("extra_data", [])],
+            same_json([e["data_config"] for e in meta.get("extra_data", [])]),
+        ),
+        "--init": (had.get("meta", {}).get("init"), meta.get("init")),
+    }
+    differ = [name for name, (kept, wanted) in checks.items() if kept != wanted]
+    if differ:
+        raise ValueError(
+            f"{run_dir} holds a model trained otherwise (its {', '.join(differ)} differ); "
+            "pass another --out (or delete its model/ to train it again)"
+        )
+
+
 def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) -> dict[str, Any]:
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
     meta = {"data_dir": str(store.root), "data_config": dataclasses.asdict(cfg)}
@@ -481,13 +517,14 @@ def stage_train(args, preset: DistillPreset, store, cfg: DataConfig, out: Path) 
                 f"({init.config} vs {config.model}); pass the same --model / --decoder"
             )
         resume = args.resume and (run_dir / "checkpoints").exists()
+        lrs = (args.lr,) if args.lr is not None else preset.lrs
         if (run_dir / "model").is_dir() and not args.resume:
+            _check_kept_model(run_dir, config, meta, train_ds, preset.seeds, lrs)
             print(f"{name}: trained model found in {run_dir}, kept (pass --resume to continue)")
         else:
             t0 = time.perf_counter()
             print(f"training {name} ({config.train.epochs} epochs) -> {run_dir}")
-            train(config, train_ds, val_ds, run_dir, seeds=preset.seeds,
-                  lrs=(args.lr,) if args.lr is not None else preset.lrs,
+            train(config, train_ds, val_ds, run_dir, seeds=preset.seeds, lrs=lrs,
                   resume=resume, progress=not args.no_progress, dataset_meta=meta,
                   init_params=None if init is None else init.params)  # fmt: skip
             print(f"  {time.perf_counter() - t0:.0f} s")
@@ -642,7 +679,7 @@ def stage_dagger(args, preset: DistillPreset, store, cfg: DataConfig, out: Path)
         raise ValueError(f"--stage dagger needs a trained run in {base} (train it first)")
     dagger = DaggerConfig(
         rounds=args.rounds, epochs=args.dagger_epochs, houses_per_round=args.dagger_houses,
-        categories_per_house=args.dagger_categories,
+        categories_per_house=args.dagger_categories, lr=args.lr,
     )  # fmt: skip
     train_ds, val_ds = _split(store, cfg, preset.val_houses)
     n_val = _n_val_shards(cfg, preset.val_houses)
@@ -654,6 +691,9 @@ def stage_dagger(args, preset: DistillPreset, store, cfg: DataConfig, out: Path)
     if args.eval_seeds:
         rng = parse_seed_range(args.eval_seeds)
         lo, hi = rng.start, rng.stop
+        if lo < EVAL_SEED_START:
+            raise ValueError(f"--eval-seeds {lo}:{hi}: rounds are judged on held-out houses "
+                             f"(>= {EVAL_SEED_START}), not on training houses")  # fmt: skip
     else:
         hi = lo + preset.eval_houses
     eval_cfg = dataclasses.replace(cfg, tasks_per_house=args.eval_tasks or preset.eval_tasks)

@@ -300,11 +300,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     data_dir = Path(args.data_dir or f"data/distill-{args.preset}")
     out.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
-    plan = {"preset": args.preset, "grid": grid, "epochs": args.epochs}
+    # what every combination shares: a finished combination is reused only under the same
+    # (the grid itself may grow: its new combinations train, the old ones are kept)
+    fixed = {"preset": args.preset, "epochs": args.epochs, "houses": args.houses,
+             "tasks": args.tasks, "data_dir": str(data_dir)}  # fmt: skip
     plan_path = out / "sweep.json"
-    if plan_path.exists() and json.loads(plan_path.read_text()).get("preset") != args.preset:
-        raise ValueError(f"{out} holds a sweep of another preset; use a new --out")
-    _atomic_json(plan, plan_path)
+    if plan_path.exists():
+        before = json.loads(plan_path.read_text())
+        differ = [k for k in fixed if k in before and before[k] != fixed[k]]
+        if differ:
+            was = ", ".join(f"--{k.replace('_', '-')} {before[k]}, now {fixed[k]}" for k in differ)
+            raise ValueError(f"{out} holds a sweep with other fixed settings ({was}); use a new "
+                             "--out")  # fmt: skip
+    _atomic_json({**fixed, "grid": grid}, plan_path)
 
     t0 = time.perf_counter()
     data_args = argparse.Namespace(houses=args.houses, tasks=args.tasks, stage="train",

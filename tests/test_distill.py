@@ -245,6 +245,10 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     assert (run / "navigation" / "results.json").is_file()
     assert "Table I: navigation, reduced protocol" in (run / "tables.md").read_text()
     assert set(summary["solver_eval"]["navigation"]["methods"]) == {"fbe"}
+    # the trained model is kept only for the same training: another rate is refused
+    with pytest.raises(ValueError, match="trained otherwise .its seeds or learning rates"):
+        distill.main(["--preset", "smoke", "--stage", "train", "--out", str(run), "--data-dir",
+                      str(data), "--lr", "0.5", "--no-progress"])  # fmt: skip
     # cached data: a second data stage generates nothing new
     meta = (data / "meta.json").read_text()
     distill.main(["--preset", "smoke", "--stage", "data", "--data-dir", str(data), "--no-progress"])
@@ -283,6 +287,10 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     again = distill.main(dagger)["dagger"]  # resumed: nothing relabelled or retrained
     assert again[1]["rows"] == history[1]["rows"]
     assert max(f.stat().st_mtime_ns for f in model_dir.rglob("*") if f.is_file()) == stamp
+    longer = list(dagger)
+    longer[longer.index("--dagger-epochs") + 1] = "2"
+    with pytest.raises(ValueError, match="DAgger round trained otherwise .its recipe or epochs"):
+        distill.main(longer)  # a finished round of 1 epoch is not reused as a 2-epoch one
 
     # reward fine-tuning of the trained run into run/rl, selected on the validation houses
     rows = distill.main(["--preset", "smoke", "--stage", "rl", "--out", str(run), "--data-dir",

@@ -96,6 +96,13 @@ def test_finetuning_raises_the_greedy_reward_and_resumes(base, tmp_path):
     with pytest.raises(ValueError, match="another recipe"):
         finetune_rl(run, train_ds, train_ds, tmp_path / "rl", dataclasses.replace(rl, lr=1e-3),
                     progress=False)  # fmt: skip
+    with pytest.raises(ValueError, match="has run 4 epochs already"):
+        finetune_rl(run, train_ds, train_ds, tmp_path / "rl", rl, seed=0, progress=False)
+    # other validation records (the epochs' selection would mix two sets): not this run
+    half = {k: v[: len(v) // 2] for k, v in train_ds.items()}
+    with pytest.raises(ValueError, match="another recipe"):
+        finetune_rl(run, train_ds, half, tmp_path / "rl", dataclasses.replace(rl, epochs=4),
+                    seed=0, progress=False)  # fmt: skip
 
 
 def test_selection_keeps_the_base_model_when_validation_says_so(base, tmp_path, monkeypatch):

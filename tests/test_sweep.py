@@ -128,6 +128,11 @@ def test_sweep_end_to_end_compiles_once_per_group_and_resumes(tmp_path, smoke_da
     assert len(again["results"]) == 4
     assert TRACE_COUNTS["train_epoch"] - traces == 2  # trained models kept: evaluation only
 
+    # the same sweep directory with another run length would reuse 1-epoch models: refused
+    longer = [a if a != "1" else "2" for a in argv]
+    with pytest.raises(ValueError, match="other fixed settings \\(--epochs 1, now 2\\)"):
+        sweep.main(longer)
+
     with pytest.raises(ValueError, match="unknown grid key"):
         sweep.main(["--preset", "smoke", "--grid", "depth=2", "--out", str(tmp_path / "x")])
     assert not (tmp_path / "x").exists()  # a bad grid stops before anything is written

@@ -109,6 +109,19 @@ def test_training_learns_the_teacher(data, tmp_path):
     assert config_json["result"]["best_replica"] == best
 
 
+def test_a_diverged_run_says_so(data, tmp_path, monkeypatch):
+    """When no replica's loss is finite, training stops with one clear line rather than
+    NumPy's all-NaN error (the validation statistics stand in for a diverged model)."""
+    from bfsop_jax.training import bc
+
+    train_ds, val_ds = data
+    config = RunConfig(model=TINY, train=dataclasses.replace(RECIPE, epochs=1), preset="smoke")
+    nan = lambda *a, **k: (lambda params, data: np.full((2, 3), np.nan, np.float32))
+    monkeypatch.setattr(bc, "make_evaluate", nan)
+    with pytest.raises(ValueError, match="training diverged: no replica has a finite loss"):
+        train(config, train_ds, val_ds, tmp_path / "run", lrs=(3e-3, 1e-3), progress=False)
+
+
 def test_interrupted_run_resumes_to_the_same_parameters(data, tmp_path):
     """Two replicas (seeds) in one vmapped program; an interrupted run, resumed, ends with
     exactly the parameters of an uninterrupted one."""

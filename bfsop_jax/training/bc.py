@@ -706,6 +706,11 @@ def train(
                 r["val_loss"] if r["val_loss"] is not None else r["train_loss"] for r in rows
             ]
             log.append(rows)
+            if not np.isfinite(np.asarray(last_losses, float)).any():
+                raise ValueError(
+                    f"training diverged: no replica has a finite loss at epoch {epoch} "
+                    "(try a lower learning rate)"
+                )
             if bar is not None:
                 best = int(np.nanargmin(last_losses))
                 bar.set_postfix(

@@ -80,6 +80,28 @@ def _last_lr(run_dir: Path, config: dict[str, Any]) -> float:
     return float(config.get("result", {}).get("lr", config["replicas"][0]["lr"]))
 
 
+def _check_round(
+    run_dir: Path, run_config: RunConfig, lr: float, warm: dict[str, Any], rows: int
+) -> None:
+    """ValueError unless the finished round in ``run_dir`` was trained as this call would
+    train it (recipe and epochs, learning rate, warm start, training rows)."""
+    old = ckpt.read_config(run_dir)
+    same_json = lambda x: json.loads(json.dumps(x))
+    dataset = old.get("dataset", {})
+    checks = {
+        "recipe or epochs": (old.get("run"), same_json(run_config.to_dict())),
+        "learning rate": ([r.get("lr") for r in old.get("replicas", [])], [float(lr)]),
+        "warm start": (dataset.get("meta"), same_json(warm)),
+        "training rows": (dataset.get("train", {}).get("instances"), rows),
+    }
+    differ = [name for name, (kept, wanted) in checks.items() if kept != wanted]
+    if differ:
+        raise ValueError(
+            f"{run_dir} holds a DAgger round trained otherwise (its {', '.join(differ)} "
+            "differ); pass another --out"
+        )
+
+
 def run_dagger(
     base_run: str | Path,
     train_ds: Mapping[str, np.ndarray],
@@ -149,7 +171,8 @@ def run_dagger(
         mine = seeds[(np.arange(h) + (r - 1) * h) % seeds.size]
         store = ShardStore(
             round_dir / "data",
-            {"dagger_round": r, "student": str(previous), "house_seeds": mine.tolist(),
+            {"dagger_round": r, "student": str(previous), "student_model": policy.fingerprint,
+             "house_seeds": mine.tolist(),
              "categories_per_house": dagger.categories_per_house,
              "data_config": dataclasses.asdict(data_config)},
         )  # fmt: skip
@@ -167,13 +190,15 @@ def run_dagger(
         row.update(rows=int(len(rows["set_id"])), aggregate=int(len(aggregate["set_id"])))
         run_dir = round_dir / "run"
         t0 = time.perf_counter()
+        warm = {"dagger_round": r, "warm_start": str(previous), "warm_model": policy.fingerprint}
         if not (run_dir / ckpt.MODEL_DIR).is_dir():
             resume = (run_dir / "checkpoints").exists()
             train(
                 run_config, aggregate, val_ds, run_dir, seeds=(0,), lrs=(lr,), resume=resume,
-                progress=progress, init_params=policy.params,
-                dataset_meta={"dagger_round": r, "warm_start": str(previous)},
+                progress=progress, init_params=policy.params, dataset_meta=warm,
             )  # fmt: skip
+        else:
+            _check_round(run_dir, run_config, lr, warm, int(len(aggregate["set_id"])))
         timings["training"] = time.perf_counter() - t0
         row["seconds"] = {k: round(v, 1) for k, v in timings.items()}
         row["run_dir"] = str(run_dir)

@@ -303,7 +303,14 @@ def finetune_rl(
     graphdef, target = nnx.split(abstract, nnx.Param)
     params = ckpt.load_model(base_run, target)
 
-    recipe = {"rl": rl.to_dict(), "seed": int(seed), "base_run": str(base_run)}
+    from bfsop_jax.policy import model_fingerprint
+
+    # the recipe names what the run's epochs depend on: a resumed run must share all of it
+    recipe = {
+        "rl": rl.to_dict(), "seed": int(seed), "base_run": str(base_run),
+        "base_model": model_fingerprint(model_config, info["num_nodes"], info["num_sets"], params),
+        "records": {"train": info, "val": None if val_ds is None else dataset_info(val_ds)},
+    }  # fmt: skip
     config = {**base_config, "rl": recipe}
     config["dataset"] = {**base_config["dataset"], "rl_train": info}
     out.mkdir(parents=True, exist_ok=True)
@@ -326,6 +333,8 @@ def finetune_rl(
     log_path = out / RL_LOG
     store = ckpt.CheckpointStore(out, max_to_keep=rl.epochs + 1)
     start = store.latest_epoch() or 0
+    if start > rl.epochs:
+        raise ValueError(f"{out} has run {start} epochs already: ask for {start} or more")
     rows = [r for r in _read_rows(log_path) if r["epoch"] <= start]
     if start:
         state, _ = store.restore(state)
