@@ -424,6 +424,18 @@ def _concat(parts: list[dict[str, np.ndarray]], names: list[str]) -> dict[str, n
     return {k: np.concatenate([p[k] for p in parts]) for k in first}
 
 
+def _refuse_shared_houses(directory, trains, vals, extra_train, extra_val) -> None:
+    """ValueError when a house validates on one side and trains on the other (model
+    selection would see its own training houses)."""
+    seeds = lambda parts: {int(h) for p in parts if p is not None for h in p["house_seed"]}
+    shared = (seeds(vals) & seeds([extra_train])) | (seeds(trains) & seeds([extra_val]))
+    if shared:
+        raise ValueError(
+            f"--extra-data {directory}: houses {sorted(shared)[:5]} train on one side and "
+            "validate on the other; use datasets of disjoint houses"
+        )
+
+
 def _with_extra_data(args, train_ds, val_ds, meta: dict[str, Any]):
     """Add the ``--extra-data`` directories: their training houses to the training set,
     their validation houses (by their own preset) to the validation set."""
@@ -437,6 +449,8 @@ def _with_extra_data(args, train_ds, val_ds, meta: dict[str, Any]):
             raise ValueError(f"--extra-data {directory}: shards {_indices(missing)} missing")
         val_houses = PRESETS[cfg.preset].val_houses if cfg.preset in PRESETS else 0
         extra_train, extra_val = _split(store, cfg, val_houses)
+        if cfg.preset == meta["data_config"]["preset"]:  # the same seed, the same house
+            _refuse_shared_houses(directory, trains, vals, extra_train, extra_val)
         trains.append(extra_train)
         vals.append(extra_val)
         names.append(directory)
@@ -568,6 +582,8 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
         lo, hi = EVAL_SEED_START, EVAL_SEED_START + preset.eval_houses
     tasks = args.eval_tasks or preset.eval_tasks
     policy = StrategicPolicy.load(checkpoint)
+    # every --compare model loads before the long part (a bad path costs nothing)
+    others = {other: StrategicPolicy.load(other) for other in args.compare or []}
     instances, owners = eval_instances(preset, lo, hi, tasks, progress=not args.no_progress)
     n = int(owners.shape[0])
     print(f"evaluation: {n} instances from houses {lo}..{hi - 1}")
@@ -603,9 +619,9 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     compare_planners = preset_planners(preset, compare=True)
     if args.compare:
         result["compare"] = {str(checkpoint): result["planners"]}
-        for other in args.compare:
+        for other, other_policy in others.items():
             sub = solver_eval.evaluate_solvers(
-                StrategicPolicy.load(other), instances, planners=compare_planners,
+                other_policy, instances, planners=compare_planners,
                 progress=not args.no_progress, teacher=evaluation.teacher,
             )  # fmt: skip
             result["compare"][other] = sub.summary["planners"]
@@ -627,6 +643,7 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     print(text)
     if preset.nav_houses > 0 and not args.no_navigation:
         result["navigation"] = stage_navigation(args, preset, out, policy, checkpoint)
+        solver_eval.write_json(result, out / "solver_eval.json")  # with its navigation
     return result
 
 
@@ -654,8 +671,8 @@ def stage_navigation(args, preset: DistillPreset, out: Path, policy, checkpoint:
         "houses) is `python -m experiments.evaluate`.\n"
     )
     text = nav.write_table1(result, nav_dir / "table1.md", header)
-    with open(out / "tables.md", "a") as f:
-        f.write(text)
+    tables = out / "tables.md"
+    files.write_text(tables, (tables.read_text() if tables.is_file() else "") + text)
     print(text)
     return {"episodes": len(episodes), "methods": result["methods"]}
 

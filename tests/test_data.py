@@ -214,6 +214,26 @@ def test_merge_errors_and_interrupted_merge(tmp_path):
         merge_datasets(tmp_path / "new", [tmp_path / "missing"])
 
 
+def test_shards_labelled_with_another_prior_or_teacher_are_not_mixed(tmp_path):
+    """Shards record the co-occurrence prior and the teacher that labelled them: a dataset
+    is not grown, resumed or merged across either (shards recorded before are taken)."""
+    from bfsop_jax.data.generate import _refuse_other_labels
+
+    mine = {"prior": "p1", "vns_config": {"iters": 5}}
+    a, b = ShardStore(tmp_path / "a", {"k": 1}), ShardStore(tmp_path / "b", {"k": 1})
+    a.write(0, _arrays(4), mine)
+    a.write(1, _arrays(2, 1))  # written before labels were recorded
+    _refuse_other_labels(a, mine)
+    for other, what in (({"prior": "p2"}, "co-occurrence prior"),
+                        ({"vns_config": {"iters": 6}}, "VNS teacher configuration")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"shard 0 was labelled with another {what}"):
+            _refuse_other_labels(a, {**mine, **other})
+    b.write(2, _arrays(3, 2), {**mine, "prior": "p2"})
+    with pytest.raises(ValueError, match="labelled with another co-occurrence prior"):
+        merge_datasets(tmp_path / "c", [a.root, b.root])
+    assert not (tmp_path / "c").exists()
+
+
 @pytest.mark.parametrize("value", ["3/2", "a/b", "0/0", "-1/2", "1", "0/2/3", ""])
 def test_distill_shard_flag_rejects_bad_values(value):
     from experiments import distill

@@ -197,6 +197,21 @@ def test_pooled_evaluations_equal_one_evaluation_of_all_houses(
         pool_eval.main([str(tmp_path), "--out", str(tmp_path / "x")])  # no solver_eval.json
 
 
+def test_extra_data_never_trains_on_validation_houses():
+    """An extra dataset of the same preset whose training houses are the main data's
+    validation houses (or whose validation houses the main data trains on) is refused."""
+    from experiments.distill import _refuse_shared_houses
+
+    rows = lambda *seeds: {"house_seed": np.asarray(seeds)}
+    train, val = [rows(0, 0, 1)], [rows(2, 2)]
+    _refuse_shared_houses("d", train, val, rows(0, 1), rows(3))  # the same split: fine
+    with pytest.raises(ValueError, match=r"--extra-data d: houses \[2\] train on one side"):
+        _refuse_shared_houses("d", train, val, rows(0, 2), rows(3))
+    with pytest.raises(ValueError, match=r"houses \[1\]"):
+        _refuse_shared_houses("d", train, val, rows(0), rows(1))
+    _refuse_shared_houses("d", train, [None], rows(2), rows(3))  # no validation split
+
+
 def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
     mass = solver_eval.decoder_distance_mass(policy, batch, batch=4)
     assert mass.shape == (2, 5)
@@ -245,6 +260,7 @@ def test_distill_end_to_end_and_eval_rerun(tmp_path, smoke_data_dir):
     assert (run / "navigation" / "results.json").is_file()
     assert "Table I: navigation, reduced protocol" in (run / "tables.md").read_text()
     assert set(summary["solver_eval"]["navigation"]["methods"]) == {"fbe"}
+    assert set(ev["navigation"]["methods"]) == {"fbe"}  # solver_eval.json records it too
     # the trained model is kept only for the same training: another rate is refused
     with pytest.raises(ValueError, match="trained otherwise .its seeds or learning rates"):
         distill.main(["--preset", "smoke", "--stage", "train", "--out", str(run), "--data-dir",

@@ -21,6 +21,7 @@ episode, labelled afterwards: the DAgger rows of :func:`student_records`).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import time
@@ -57,6 +58,7 @@ __all__ = [
     "generate_dataset",
     "label_virtual_tasks",
     "pose_tasks",
+    "prior_digest",
     "shard_records",
     "student_records",
     "virtual_tasks",
@@ -314,24 +316,50 @@ def generate_dataset(
     i_shard, n_proc = shard
     if not (0 <= i_shard < n_proc):
         raise ValueError(f"shard must be i/n with 0 <= i < n, got {i_shard}/{n_proc}")
+    prior_np = np.asarray(default_prior(), np.float32)
+    labelled = {
+        "prior": prior_digest(prior_np),
+        "vns_config": json.loads(json.dumps(config.vns_config.to_dict())),
+    }
+    _refuse_other_labels(store, labelled)
     todo = [s for s in range(config.n_shards) if s % n_proc == i_shard]
     todo = [s for s in todo if not store.is_complete(s)]
     if not todo:
         return store
 
-    prior = jnp.asarray(default_prior())
+    prior = jnp.asarray(prior_np)
     bar = tqdm(total=len(todo) * config.houses_per_shard, desc="dataset", unit="house",
                disable=not progress)  # fmt: skip
     for s in todo:
         lo = config.seed_start + s * config.houses_per_shard
         seeds = np.arange(lo, min(lo + config.houses_per_shard, config.seed_start + config.houses))
         arrays = shard_records(seeds, preset, config, prior)
-        info = {"house_seeds": [int(seeds[0]), int(seeds[-1])]}
-        info["vns_config"] = config.vns_config.to_dict()  # how the teacher labelled the shard
+        # how the shard was labelled: the teacher and the prior behind the set rewards
+        info = {"house_seeds": [int(seeds[0]), int(seeds[-1])], **labelled}
         store.write(s, arrays, info)
         bar.update(len(seeds))
     bar.close()
     return store
+
+
+def prior_digest(prior) -> str:
+    """16 hex digits naming a co-occurrence prior (float32 [C, T] values), recorded with
+    the records it labelled."""
+    return hashlib.sha256(np.asarray(prior, np.float32).tobytes()).hexdigest()[:16]
+
+
+def _refuse_other_labels(store: ShardStore, labelled: dict) -> None:
+    """ValueError when a shard of ``store`` was labelled with another co-occurrence prior
+    or teacher configuration than ``labelled`` (shards written before these were recorded
+    are taken as they are)."""
+    for index, info in store.meta["shards"].items():
+        for key, value in labelled.items():
+            if key in info and info[key] != value:
+                what = "co-occurrence prior" if key == "prior" else "VNS teacher configuration"
+                raise ValueError(
+                    f"dataset directory {store.root}: shard {index} was labelled with another "
+                    f"{what}; use another --data-dir (or remove it to label it again)"
+                )
 
 
 def _grow(out_dir: str | Path, config: DataConfig) -> None:

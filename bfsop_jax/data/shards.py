@@ -267,6 +267,16 @@ def merge_datasets(
             warnings.warn(f"{s.shard_path(i)} is listed but unreadable; skipped", stacklevel=2)
         for i in complete:
             found.setdefault(i, []).append(s)
+    labels: dict[str, tuple[Any, Path]] = {}  # how shards were labelled, where first seen
+    for s in stores:
+        for info in s.meta["shards"].values():
+            for key in ("prior", "vns_config"):  # recorded since they are
+                if key in info and labels.setdefault(key, (info[key], s.root))[0] != info[key]:
+                    raise ValueError(
+                        f"dataset directories {labels[key][1]} and {s.root} were labelled with "
+                        f"another {'co-occurrence prior' if key == 'prior' else 'VNS teacher'}"
+                        "; only datasets labelled alike can be merged"
+                    )
     for i, holders in sorted(found.items()):
         first = holders[0]
         for other in holders[1:]:

@@ -36,7 +36,7 @@ import numpy as np
 
 from bfsop_jax import checkpoint as ckpt
 from bfsop_jax.config import get_preset
-from bfsop_jax.data.generate import DataConfig, student_records
+from bfsop_jax.data.generate import DataConfig, prior_digest, student_records
 from bfsop_jax.data.shards import ShardStore
 from bfsop_jax.files import write_json
 from bfsop_jax.training.config import RunConfig
@@ -172,7 +172,7 @@ def run_dagger(
         store = ShardStore(
             round_dir / "data",
             {"dagger_round": r, "student": str(previous), "student_model": policy.fingerprint,
-             "house_seeds": mine.tolist(),
+             "prior": prior_digest(prior), "house_seeds": mine.tolist(),
              "categories_per_house": dagger.categories_per_house,
              "data_config": dataclasses.asdict(data_config)},
         )  # fmt: skip
