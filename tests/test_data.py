@@ -256,3 +256,18 @@ def test_distill_shard_and_merge_flags_parse(capsys):
     with pytest.raises(SystemExit):  # argparse takes "-1/2" for an option: its own error
         distill._parse(["--shard", "-1/2"])
     assert "argument --shard" in capsys.readouterr().err
+
+
+def test_a_student_that_plans_nothing_is_a_clear_error(monkeypatch):
+    """DAgger: when the student planned no tour there is nothing for the teacher to label."""
+    import jax.numpy as jnp
+
+    from bfsop_jax.config import get_preset
+    from bfsop_jax.data import generate
+
+    none = lambda keys, *a: (None, np.zeros((keys.shape[0], 3), bool))
+    monkeypatch.setattr(generate, "_student_jit", none)
+    cfg = DataConfig(preset="smoke", houses=1, tasks_per_house=2)
+    with pytest.raises(ValueError, match="the student planned no tour in houses \\[3\\]"):
+        generate.student_records(np.asarray([3]), None, get_preset("smoke"), cfg,
+                                 jnp.zeros((1, 1)), categories_per_house=1)  # fmt: skip

@@ -122,7 +122,7 @@ def test_a_diverged_run_says_so(data, tmp_path, monkeypatch):
         train(config, train_ds, val_ds, tmp_path / "run", lrs=(3e-3, 1e-3), progress=False)
 
 
-def test_interrupted_run_resumes_to_the_same_parameters(data, tmp_path):
+def test_interrupted_run_resumes_to_the_same_parameters(data, tmp_path, monkeypatch):
     """Two replicas (seeds) in one vmapped program; an interrupted run, resumed, ends with
     exactly the parameters of an uninterrupted one."""
     train_ds, val_ds = data
@@ -148,6 +148,22 @@ def test_interrupted_run_resumes_to_the_same_parameters(data, tmp_path):
     other = RunConfig(model=dataclasses.replace(TINY, d_ff=32), train=RECIPE, preset="smoke")
     with pytest.raises(ValueError, match="cannot resume"):
         train(other, train_ds, val_ds, part, resume=True, **kwargs)
+
+    # interrupted again in the last epoch, after its step but while its rows are logged:
+    # the resumed run must still log that epoch and choose the same replica
+    from bfsop_jax.training import bc
+
+    append = bc.MetricsLog.append
+
+    def interrupted_append(self, rows):
+        if rows[0]["epoch"] == RECIPE.epochs:
+            raise KeyboardInterrupt
+        return append(self, rows)
+
+    monkeypatch.setattr(bc.MetricsLog, "append", interrupted_append)
+    with pytest.raises(KeyboardInterrupt):
+        train(config, train_ds, val_ds, part, resume=True, **kwargs)
+    monkeypatch.setattr(bc.MetricsLog, "append", append)
 
     resumed = train(config, train_ds, val_ds, part, resume=True, **kwargs)
     assert resumed.complete and resumed.epochs_done == RECIPE.epochs

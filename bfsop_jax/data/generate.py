@@ -534,6 +534,11 @@ def student_records(
     if timings is not None:
         timings["student_episodes"] = timings.get("student_episodes", 0.0) + now - clock
     sel = np.asarray(planned).reshape(-1)
+    if not sel.any():
+        raise ValueError(
+            f"the student planned no tour in houses {seeds.tolist()} (nothing to label); "
+            "drive it in more houses or for more categories"
+        )
     steps = np.shape(planned)[1]
     inst = _selected_steps(inst, sel)
     vns_seeds = np.flatnonzero(sel).astype(np.int64) + 7919 * int(episode_salt)

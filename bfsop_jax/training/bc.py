@@ -680,7 +680,6 @@ def train(
             train_stats = to_host(train_stats)
             val_stats = to_host(evaluate(new_states.params, val_data)) if evaluate else None
             seconds = time.perf_counter() - t0
-            states, done = new_states, epoch
             rows = []
             for i, rep in enumerate(members):
                 train_loss, train_acc = _stats_row(train_stats[i])
@@ -706,6 +705,9 @@ def train(
                 r["val_loss"] if r["val_loss"] is not None else r["train_loss"] for r in rows
             ]
             log.append(rows)
+            # the epoch counts as done (and is saved on an interrupt) once its rows are
+            # logged: an interrupt before that runs it again on resume, with its own rows
+            states, done = new_states, epoch
             if not np.isfinite(np.asarray(last_losses, float)).any():
                 raise ValueError(
                     f"training diverged: no replica has a finite loss at epoch {epoch} "
