@@ -126,11 +126,10 @@ def _houses(preset_name: str, houses: int, sizes: list[int], seed: int) -> list[
     on the evaluation's matrices: a random F of a category's instances per house-category
     pair with at least F, from the episode's start. Returns one row per F compared."""
     import jax
-    import jax.numpy as jnp
 
     from bfsop_jax.config import EVAL_SEED_START, get_preset
     from bfsop_jax.env import sample_start_pose
-    from bfsop_jax.eval.navigation import Episode, HouseSet, verification_matrix
+    from bfsop_jax.eval.navigation import Episode, HouseSet, target_distances
     from bfsop_jax.world.constants import TARGET_NAMES
 
     preset = get_preset(preset_name)
@@ -148,18 +147,14 @@ def _houses(preset_name: str, houses: int, sizes: list[int], seed: int) -> list[
     if not compared:
         return []
     start = jax.jit(lambda k, h: sample_start_pose(k, h, preset)[:2])
-    geometry = jax.jit(lambda h, s, t, v: verification_matrix(h, s, t, v, preset))
     rng = np.random.default_rng(seed)
     mats: dict[int, list[np.ndarray]] = {f: [] for f in compared}
     for row, house_id in enumerate(seeds):
         house = house_set[house_id]
         for cat in np.flatnonzero(counts[row] >= min(compared)):
-            idx = np.flatnonzero(np.asarray(house.object_category) == cat)
-            width = 8 * -(-len(idx) // 8)  # few distinct shapes, few compilations
-            tgt, ok = np.zeros(width, np.int32), np.arange(width) < len(idx)
-            tgt[: len(idx)] = idx
-            xy = start(Episode(house_id, int(cat)).key, house)
-            dist = np.asarray(geometry(house, xy, jnp.asarray(tgt), jnp.asarray(ok)))
+            episode = Episode(house_id, int(cat))
+            xy = np.asarray(start(episode.key, house))[None]
+            (idx,), (dist,) = target_distances([episode], house_set, xy)
             for f in compared:
                 if f <= len(idx):
                     sel = np.concatenate([[0], 1 + np.sort(rng.choice(len(idx), f, replace=False))])

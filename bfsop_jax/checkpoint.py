@@ -43,6 +43,7 @@ __all__ = [
     "CONFIG_FILE",
     "MODEL_DIR",
     "CHECKPOINT_DIR",
+    "differing",
     "export_policy",
     "load_model",
     "local_target",
@@ -250,6 +251,14 @@ def read_config(run_dir: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(config, dict):
         raise ValueError(f"corrupt {path}: expected a JSON object")
     return config
+
+
+def differing(checks: dict[str, tuple[Any, Any]]) -> list[str]:
+    """The names of ``checks`` (name -> (recorded, wanted)) whose two values differ once
+    both are written as JSON would store them (tuples as lists, and so on): what a kept
+    run directory was made with against what this call would make it with."""
+    as_json = lambda x: json.loads(json.dumps(x))
+    return [name for name, (kept, wanted) in checks.items() if as_json(kept) != as_json(wanted)]
 
 
 def export_policy(run_dir: str | os.PathLike, dest: str | os.PathLike) -> Path:

@@ -484,25 +484,23 @@ def _check_kept_model(
     from bfsop_jax.training.bc import dataset_info
 
     old = ckpt.read_config(run_dir)
-    same_json = lambda x: json.loads(json.dumps(x))
     had = old.get("dataset", {})
-    checks = {
-        "model or training recipe": (old.get("run"), same_json(config.to_dict())),
+    differ = ckpt.differing({
+        "model or training recipe": (old.get("run"), config.to_dict()),
         "seeds or learning rates": (
             sorted((r.get("seed"), r.get("lr")) for r in old.get("replicas", [])),
             sorted((s, float(lr)) for s in seeds for lr in lrs),
         ),
         "data": (
             [had.get("meta", {}).get("data_config"), had.get("train", {}).get("instances")],
-            same_json([meta["data_config"], dataset_info(train_ds)["instances"]]),
+            [meta["data_config"], dataset_info(train_ds)["instances"]],
         ),
         "--extra-data": (
             [e.get("data_config") for e in had.get("meta", {}).get("extra_data", [])],
-            same_json([e["data_config"] for e in meta.get("extra_data", [])]),
+            [e["data_config"] for e in meta.get("extra_data", [])],
         ),
         "--init": (had.get("meta", {}).get("init"), meta.get("init")),
-    }
-    differ = [name for name, (kept, wanted) in checks.items() if kept != wanted]
+    })  # fmt: skip
     if differ:
         raise ValueError(
             f"{run_dir} holds a model trained otherwise (its {', '.join(differ)} differ); "

@@ -89,6 +89,7 @@ __all__ = [
     "describe_strategy",
     "protocol_episodes",
     "summarise",
+    "target_distances",
     "verification_matrix",
 ]
 
@@ -291,14 +292,13 @@ def _geometry(preset: Preset) -> Any:
     return jax.jit(jax.vmap(lambda h, s, t, v: verification_matrix(h, s, t, v, preset)))
 
 
-def _target_slots(
-    episodes: Sequence[Episode], houses: HouseSet
-) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """Each episode's target object slots, and the same padded for :func:`_geometry`.
-
-    Returns the per-episode slot arrays, and ``tgt`` int32 [E, W] / ``ok`` bool [E, W]
-    with W a multiple of 8 (few distinct shapes, few compilations).
-    """
+def target_distances(
+    episodes: Sequence[Episode], houses: HouseSet, start_xy: np.ndarray
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """Each episode's target object slots, and its :func:`verification_matrix` from its
+    start ``start_xy`` float32 [E, 2] (metres): ``dist`` [E, W+1, W+1] with W the largest
+    target count rounded up to a multiple of 8 (few distinct shapes, few compilations);
+    episode e's targets are rows and columns ``1..len(targets[e])``."""
     targets = [
         np.flatnonzero(np.asarray(houses[ep.house].object_category) == ep.category)
         for ep in episodes
@@ -308,7 +308,9 @@ def _target_slots(
     ok = np.zeros((len(episodes), width), bool)
     for i, idx in enumerate(targets):
         tgt[i, : len(idx)], ok[i, : len(idx)] = idx, True
-    return targets, tgt, ok
+    house_batch = _stack([houses[ep.house] for ep in episodes])
+    start = jnp.asarray(start_xy, jnp.float32)
+    return targets, np.asarray(_geometry(houses.preset)(house_batch, start, tgt, ok))
 
 
 def _l_opt(dist: np.ndarray, found_mask: np.ndarray) -> float:
@@ -338,10 +340,8 @@ def _rescore_chunk(
 ) -> list[dict[str, Any]]:
     """``records`` of a finished chunk with L_opt, PPL and PPL at the end recomputed by
     today's scoring from its saved ``paths`` (the start is each path's first point)."""
-    targets, tgt, ok = _target_slots(chunk, houses)
     start = np.stack([np.asarray(paths[f"{i}_xy"][0], np.float32) for i in range(len(chunk))])
-    house_batch = _stack([houses[ep.house] for ep in chunk])
-    dist = np.asarray(_geometry(houses.preset)(house_batch, jnp.asarray(start), tgt, ok))
+    targets, dist = target_distances(chunk, houses, start)
     out = []
     for i, (ep, r) in enumerate(zip(chunk, records, strict=True)):
         found_mask = np.isin(targets[i], _found_slots(paths, i, targets[i], houses[ep.house]))
@@ -376,7 +376,6 @@ class _Runner:
         self.roll = jax.jit(
             jax.vmap(lambda s, m: continue_rollout(s, m, strategy, preset, _SEGMENT))
         )
-        self.geometry = _geometry(preset)
 
         self.compile_s = 0.0
         self._compiled: Any = None
@@ -441,10 +440,8 @@ def _episode_records(
 ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
     """Per-episode metrics of one chunk, plus the compact paths kept for figures."""
     preset = runner.preset
-    targets, tgt, ok = _target_slots(episodes, houses)
-    house_batch = _stack([houses[ep.house] for ep in episodes])
     start_xy = np.asarray(initial.pose)[:, :2]
-    dist = np.asarray(runner.geometry(house_batch, jnp.asarray(start_xy), tgt, ok))
+    targets, dist = target_distances(episodes, houses, start_xy)
     records, paths = [], {}
     for i, ep in enumerate(episodes):
         found_mask = np.asarray(final.found[i])[targets[i]]

@@ -86,15 +86,13 @@ def _check_round(
     """ValueError unless the finished round in ``run_dir`` was trained as this call would
     train it (recipe and epochs, learning rate, warm start, training rows)."""
     old = ckpt.read_config(run_dir)
-    same_json = lambda x: json.loads(json.dumps(x))
     dataset = old.get("dataset", {})
-    checks = {
-        "recipe or epochs": (old.get("run"), same_json(run_config.to_dict())),
+    differ = ckpt.differing({
+        "recipe or epochs": (old.get("run"), run_config.to_dict()),
         "learning rate": ([r.get("lr") for r in old.get("replicas", [])], [float(lr)]),
-        "warm start": (dataset.get("meta"), same_json(warm)),
+        "warm start": (dataset.get("meta"), warm),
         "training rows": (dataset.get("train", {}).get("instances"), rows),
-    }
-    differ = [name for name, (kept, wanted) in checks.items() if kept != wanted]
+    })  # fmt: skip
     if differ:
         raise ValueError(
             f"{run_dir} holds a DAgger round trained otherwise (its {', '.join(differ)} "
