@@ -46,7 +46,7 @@ from bfsop_jax.navigation.grid import (
     xy_to_plan_cell,
 )
 
-__all__ = ["FBE", "FBEConfig", "FBEMemory"]
+__all__ = ["FBE", "FBEConfig", "FBEMemory", "near_dropped"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,7 +114,7 @@ class FBE:
         free, unknown = plan_cell_states(obs.belief, preset)
         motion = motion_blocked(obs.belief, obs.pose[:2], preset, blocked)
         field = distance_field(motion, obs.pose[:2], preset)
-        cells = frontier_mask(free, unknown, blocked) & ~_near_dropped(memory, cfg, preset)
+        cells = frontier_mask(free, unknown, blocked) & ~near_dropped(memory, cfg, preset)
         frontiers = cluster_frontier_cells(cells, preset)
         bonus = None
         if cfg.gain_weight_m > 0:
@@ -150,7 +150,7 @@ class FBE:
         )
 
 
-def _near_dropped(memory: FBEMemory, cfg: FBEConfig, preset: Preset) -> jax.Array:
+def near_dropped(memory: FBEMemory, cfg: FBEConfig, preset: Preset) -> jax.Array:
     """[Hp, Wp] bool: planning cells within ``drop_radius`` of a dropped goal."""
     hp, wp = preset.plan_shape
     r = cfg.drop_radius

@@ -86,6 +86,7 @@ __all__ = [
     "HouseSet",
     "evaluate_navigation",
     "make_strategy",
+    "optimal_found_length",
     "describe_strategy",
     "protocol_episodes",
     "summarise",
@@ -318,6 +319,15 @@ def _l_opt(dist: np.ndarray, found_mask: np.ndarray) -> float:
     through the found targets (``found_mask`` bool [S]); 0 with none found."""
     sel = np.concatenate([[0], 1 + np.flatnonzero(found_mask)])
     return float(metrics.optimal_visit_length(dist[np.ix_(sel, sel)])) if len(sel) > 1 else 0.0
+
+
+def optimal_found_length(
+    episode: Episode, houses: HouseSet, start_xy: np.ndarray, found_slots: np.ndarray
+) -> float:
+    """L_opt (metres) of one episode from its start ``start_xy`` [2] through the target
+    instances in object slots ``found_slots`` (the benchmark's scoring)."""
+    targets, dist = target_distances([episode], houses, np.asarray(start_xy, np.float32)[None])
+    return _l_opt(dist[0], np.isin(targets[0], found_slots))
 
 
 def _found_slots(paths: Any, i: int, targets: np.ndarray, house: House) -> np.ndarray:

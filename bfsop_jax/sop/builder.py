@@ -45,6 +45,7 @@ __all__ = [
     "coverage_points",
     "covered_from",
     "covered_reward",
+    "inside_map",
     "part_masks",
     "select_landmarks",
     "viewpoint_candidates",
@@ -151,6 +152,7 @@ def select_landmarks(
     preset: Preset,
     covered: jax.Array | None = None,
     object_half_extent: jax.Array | None = None,
+    count: int | None = None,
 ) -> LandmarkChoice:
     """Top ``n_loi`` candidate landmarks by reward (nearer first among equals).
 
@@ -166,24 +168,29 @@ def select_landmarks(
             landmark *parts* (:func:`part_masks`), each worth its share of the
             landmark's reward by unseen points, and ``part`` says which points each
             set stands for.
+        count: how many to return (static; default ``preset.n_loi``; whole landmarks
+            only).
     """
     reward = prior[jnp.maximum(object_category, 0), category]
     if covered is not None:
         reward = covered_reward(reward, covered)
     if covered is not None and object_half_extent is not None:
+        if count is not None:
+            raise ValueError("select_landmarks: count applies to whole landmarks, not parts")
         return _select_parts(candidates, object_category, object_xy, agent_xy, reward,
                              covered, object_half_extent, preset)  # fmt: skip
     ok = candidates & (object_category >= 0) & (reward > 0)
     dist = jnp.linalg.norm(object_xy - agent_xy, axis=-1)
     # Rewards are probabilities in [0, 1]; the distance term only breaks ties.
     score = jnp.where(ok, reward - 1e-6 * dist, -jnp.inf)
-    n = min(preset.n_loi, candidates.shape[-1])
+    slots = preset.n_loi if count is None else count
+    n = min(slots, candidates.shape[-1])
     top, idx = jax.lax.top_k(score, n)
     valid = jnp.isfinite(top)
     idx = jnp.where(valid, idx, -1).astype(jnp.int32)
     rew = jnp.where(valid, reward[jnp.maximum(idx, 0)], 0.0)
-    if n < preset.n_loi:  # fewer object slots than LOI slots (tiny hand-made houses)
-        pad = preset.n_loi - n
+    if n < slots:  # fewer object slots than LOI slots (tiny hand-made houses)
+        pad = slots - n
         idx = jnp.concatenate([idx, jnp.full(pad, -1, jnp.int32)])
         rew = jnp.concatenate([rew, jnp.zeros(pad, rew.dtype)])
     return LandmarkChoice(index=idx, reward=rew.astype(jnp.float32))
@@ -259,6 +266,17 @@ def viewpoint_candidates(
     return xy, jnp.asarray(angle), jnp.asarray(offset)
 
 
+def inside_map(xy: jax.Array, preset: Preset) -> jax.Array:
+    """bool [...]: the points ``xy`` [..., 2] (metres) lie on the planning grid."""
+    hp, wp = preset.plan_shape
+    return (
+        (xy[..., 0] >= 0)
+        & (xy[..., 1] >= 0)
+        & (xy[..., 0] < wp * preset.plan_cell_size)
+        & (xy[..., 1] < hp * preset.plan_cell_size)
+    )
+
+
 def _viewpoint_coverage(
     xy: jax.Array, points: jax.Array, unseen: jax.Array, centre: jax.Array, preset: Preset
 ) -> tuple[jax.Array, jax.Array]:
@@ -306,14 +324,8 @@ def completion_viewpoint(
     xy, _, _ = viewpoint_candidates(centre, half_extent, preset)  # [C, 2]
     points = coverage_points(centre, half_extent)  # [P, 2]
     sees, look = _viewpoint_coverage(xy, points, ~covered, centre, preset)
-    hp, wp = preset.plan_shape
     cells = xy_to_plan_cell(xy, preset)
-    inside = (
-        (xy[:, 0] >= 0)
-        & (xy[:, 1] >= 0)
-        & (xy[:, 0] < wp * preset.plan_cell_size)
-        & (xy[:, 1] < hp * preset.plan_cell_size)
-    )
+    inside = inside_map(xy, preset)
     blocked = planning_blocked(belief, preset)
     reach = distance_field(blocked, agent_xy, preset)[cells[:, 0], cells[:, 1]]
     usable = inside & ~blocked[cells[:, 0], cells[:, 1]] & jnp.any(sees, axis=-1)
@@ -405,14 +417,8 @@ def build_instance(
     xy, angle, offset = jax.vmap(viewpoint_candidates, in_axes=(0, 0, None))(
         object_xy[lm], object_half_extent[lm], preset
     )  # [L, C, 2], [L, C], [L, C]
-    hp, wp = preset.plan_shape
     cells = xy_to_plan_cell(xy, preset)
-    inside = (
-        (xy[..., 0] >= 0)
-        & (xy[..., 1] >= 0)
-        & (xy[..., 0] < wp * preset.plan_cell_size)
-        & (xy[..., 1] < hp * preset.plan_cell_size)
-    )
+    inside = inside_map(xy, preset)
     from_agent = distance_field(blocked, agent_xy, preset)
     reach = from_agent[cells[..., 0], cells[..., 1]]
     usable = inside & ~blocked[cells[..., 0], cells[..., 1]] & jnp.isfinite(reach)
