@@ -1,9 +1,11 @@
-"""Navigation strategies (FBE, BFS-Global, TFL-Reactive, BF-SOP) and the one rollout."""
+"""Navigation strategies (FBE, BFS-Global, TFL-Reactive, BF-SOP), the one rollout, and the
+episode recorder behind the GIFs (:mod:`bfsop_jax.agents.record`)."""
 
 from bfsop_jax.agents.bfs_global import BFSGlobal, BFSGlobalConfig
 from bfsop_jax.agents.bfsop import BFSOP, BFSOPConfig
 from bfsop_jax.agents.fbe import FBE, FBEConfig, FBEMemory
 from bfsop_jax.agents.planners import NearestNeighbourPlanner, TransformerPlanner, VNSPlanner
+from bfsop_jax.agents.record import EpisodeFrames, EpisodeRecorder, record_episode
 from bfsop_jax.agents.rollout import (
     Decision,
     Strategy,
@@ -21,6 +23,8 @@ __all__ = [
     "BFSOP",
     "BFSOPConfig",
     "Decision",
+    "EpisodeFrames",
+    "EpisodeRecorder",
     "FBE",
     "FBEConfig",
     "FBEMemory",
@@ -34,5 +38,6 @@ __all__ = [
     "continue_rollout",
     "explore_decision",
     "max_macro_steps",
+    "record_episode",
     "rollout",
 ]

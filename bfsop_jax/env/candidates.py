@@ -12,8 +12,8 @@ observed only (its belief map, pose, budget and the objects it has detected):
   the category, not yet visited), the L of highest reward
   (:func:`bfsop_jax.sop.builder.select_landmarks`), each at its best viewpoint: of the
   SOP builder's candidate viewpoints around its footprint
-  (:func:`bfsop_jax.sop.builder.viewpoint_candidates`), the free one nearest the agent;
-  on arrival the agent faces the landmark.
+  (:func:`bfsop_jax.sop.builder.viewpoint_candidates`), the free one nearest the agent
+  (at its planning cell's centre); on arrival the agent faces the landmark.
 
 A candidate is available (``action_mask``) when it holds a goal the agent can reach on its
 motion map; distances are geodesic (one distance field from the agent, the one FBE
@@ -25,7 +25,7 @@ without progress towards it.
 
 Per-candidate features (``FEATURES``, columns of ``CandidateObservation.features``) are
 scaled to order one: kind one-hots, geodesic distance / budget, reachable within what is
-left, frontier length (metres / 10), unknown share around a frontier, landmark prior
+left, frontier size (planning cells / 50), unknown share around a frontier, landmark prior
 reward, remaining budget / budget, and the goal's offset from the agent (metres / 10).
 """
 
@@ -83,7 +83,7 @@ FEATURES: tuple[str, ...] = (
     "is_landmark",
     "distance_over_budget",  # geodesic metres / B
     "reachable_in_budget",  # 1 when the distance is within B - L
-    "frontier_length_10m",  # cluster size in metres / 10 (frontiers)
+    "frontier_size_50",  # cluster size in planning cells / 50 (frontiers)
     "unknown_share",  # unknown share of the square around the frontier (frontiers)
     "landmark_reward",  # prior P(target | landmark type) (landmarks)
     "remaining_over_budget",  # (B - L) / B, the same on every row
@@ -198,7 +198,8 @@ def pose_candidates(
     f_look_xy = plan_cell_to_xy(f_cell + side, preset)
     f_look = jnp.any(side != 0, axis=-1)
     area = (2 * cfg.gain_radius + 1) ** 2
-    f_unknown = unknown_count(unknown, f_cell, cfg.gain_radius).astype(jnp.float32) / area
+    f_unknown = unknown_count(unknown, f_cell, cfg.gain_radius).astype(jnp.float32)
+    f_unknown = f_unknown * np.float32(1.0 / area)
 
     # landmarks: the L pending ones of highest reward, each at its nearest free viewpoint
     pending = pending_landmarks(obs, memory.retired)
@@ -216,7 +217,9 @@ def pose_candidates(
     best = jnp.argmin(jnp.where(usable, reach, jnp.inf), axis=-1)  # [L]
     rows = jnp.arange(best.shape[0])
     l_valid = usable[rows, best]
-    l_xy = vp_xy[rows, best]
+    # the centre of the viewpoint's planning cell (where the agent stops): exact, so a
+    # batched row and its single run offer the same goal to the last bit
+    l_xy = plan_cell_to_xy(vp_cell[rows, best], preset)
     l_dist = reach[rows, best]
 
     here = xy_to_plan_cell(agent_xy, preset)
@@ -247,20 +250,23 @@ def pose_candidates(
 
 def candidate_observation(cands: Candidates, obs: Observation) -> CandidateObservation:
     """The agent's view of the candidates (features scaled as in ``FEATURES``)."""
-    budget = jnp.maximum(obs.budget, 1e-6)
+    # products with one reciprocal, never divisions: XLA may turn a division into a
+    # multiply by the reciprocal in one program and not in another, and a batched row
+    # must equal its single run bit for bit
+    per_budget = 1.0 / jnp.maximum(obs.budget, 1e-6)
     remaining = obs.remaining
     n = cands.kind.shape[0]
-    offset = (cands.goal_xy - obs.pose[:2]) / 10.0
+    offset = (cands.goal_xy - obs.pose[:2]) * np.float32(0.1)
     columns = [
         cands.kind == STOP,
         cands.kind == FRONTIER,
         cands.kind == LANDMARK,
-        cands.distance / budget,
+        cands.distance * per_budget,
         cands.distance <= remaining,
-        cands.size.astype(jnp.float32) * (0.2 / 10.0),
+        cands.size.astype(jnp.float32) * np.float32(0.02),
         cands.unknown,
         cands.reward,
-        jnp.broadcast_to(remaining / budget, (n,)),
+        jnp.broadcast_to(remaining * per_budget, (n,)),
         offset[:, 0],
         offset[:, 1],
     ]

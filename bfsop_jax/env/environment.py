@@ -246,9 +246,7 @@ class NavigationEnv:
             state = state.replace(candidates=memory)
         else:
             nothing_left = jnp.zeros((), bool)
-        reward = (found - state.rewarded).astype(jnp.float32) / jnp.maximum(
-            state.n_targets, 1
-        ).astype(jnp.float32)
+        reward = (found - state.rewarded).astype(jnp.float32) * _per_target(state)
         terminated = state.stopped | stop | new_sim.done | (found >= state.n_targets)
         terminated = terminated | nothing_left
         truncated = ~terminated & (new_sim.steps >= params.max_steps)
@@ -278,7 +276,7 @@ class NavigationEnv:
         return {
             "found": found,
             "n_targets": state.n_targets,
-            "progress": found.astype(jnp.float32) / jnp.maximum(state.n_targets, 1),
+            "progress": found.astype(jnp.float32) * _per_target(state),
             "path_length": state.env.path_length,
             "last_find_length": state.last_find_length,
             "macro_steps": state.env.steps,
@@ -360,6 +358,11 @@ class NavigationEnv:
         """float32 [2]: the planning grid's width and height in metres (x, y)."""
         hp, wp = self.preset.plan_shape
         return np.array([wp, hp], np.float32) * np.float32(self.preset.plan_cell_size)
+
+
+def _per_target(state: TaskState) -> jax.Array:
+    """float32 []: 1 / instances (a reciprocal, then products: the same in every program)."""
+    return 1.0 / jnp.maximum(state.n_targets, 1).astype(jnp.float32)
 
 
 def target_counts(house: House) -> jax.Array:

@@ -99,7 +99,13 @@ class LogWrapper(Wrapper):
     """Episode statistics in ``info`` (module docstring). Wrap an :class:`AutoReset`."""
 
     def reset(self, key: jax.Array, params: Any) -> tuple[Any, LogState]:
-        obs, state = self.env.reset(key, params)
+        return self._wrap(*self.env.reset(key, params))
+
+    def reset_to(self, *args: Any, **kwargs: Any) -> tuple[Any, LogState]:
+        """The wrapped environment's ``reset_to`` (a given house and category)."""
+        return self._wrap(*self.env.reset_to(*args, **kwargs))
+
+    def _wrap(self, obs: Any, state: Any) -> tuple[Any, LogState]:
         blank = {f"episode_{k}": jnp.zeros_like(v) for k, v in self._probe(state).items()}
         blank["episode_return"] = jnp.zeros((), jnp.float32)
         return obs, LogState(state, jnp.zeros((), jnp.float32), blank)

@@ -78,6 +78,7 @@ from bfsop_jax.world.types import House
 
 __all__ = [
     "ABLATIONS",
+    "CANDIDATE_METHODS",
     "BASELINES",
     "LABELS",
     "METHODS",
@@ -102,7 +103,10 @@ SCORING = 2
 BASELINES: tuple[str, ...] = ("fbe", "bfs_global", "tfl_reactive")
 # Rows run on request only (``--methods``), never a "best baseline": TFL-Reactive with
 # BF-SOP's explorer shows how much of BF-SOP's margin is its exploration mode's.
-ABLATIONS: tuple[str, ...] = ("tfl_reactive_gain",)
+# The scripted policies of the environment's candidate interface (bfsop_jax.env) run as
+# extra rows too: what choosing among the posed candidates gives without learning.
+CANDIDATE_METHODS: tuple[str, ...] = ("cand_nearest_frontier", "cand_nearest_landmark")
+ABLATIONS: tuple[str, ...] = ("tfl_reactive_gain", *CANDIDATE_METHODS)
 LABELS: dict[str, str] = {
     "fbe": "FBE",
     "bfs_global": "BFS-Global",
@@ -110,6 +114,8 @@ LABELS: dict[str, str] = {
     "bfsop_vns": "BF-SOP (VNS)",
     "bfsop_st": "BF-SOP (Transformer)",
     "tfl_reactive_gain": "TFL-Reactive + gain explorer",
+    "cand_nearest_frontier": "Candidates: nearest frontier",
+    "cand_nearest_landmark": "Candidates: nearest landmark, else frontier",
 }
 _START_SALT = 7919  # reset key = fold_in(key(house seed), _START_SALT + category)
 _SEGMENT = 32  # macro steps per jitted rollout segment (progress and early stop)
@@ -217,6 +223,12 @@ def make_strategy(
     explore = settings.get("explorer", {})
     if name == "fbe":
         return FBE(FBEConfig(**explore))
+    if name in CANDIDATE_METHODS:
+        from bfsop_jax.agents.candidate import CandidateAgent
+        from bfsop_jax.env.candidates import CandidateConfig
+
+        config = CandidateConfig(explorer=FBEConfig(**explore))
+        return CandidateAgent(name.removeprefix("cand_"), config)
     if name == "bfs_global":
         strategy = BFSGlobal(BFSGlobalConfig(**settings.get(name, {})))
     elif name == "tfl_reactive":
@@ -852,6 +864,9 @@ def write_table1(result: dict[str, Any], path: str | os.PathLike, header: str = 
         comparisons.append(("bfsop_vns", best, "best baseline"))
     if "bfsop_st" in methods and "tfl_reactive_gain" in methods:
         comparisons.append(("bfsop_st", "tfl_reactive_gain", "the same explorer"))
+    for cand in CANDIDATE_METHODS:
+        comparisons += [(cand, b, "scripted candidates") for b in ("fbe", "tfl_reactive")
+                        if cand in methods and b in methods]  # fmt: skip
     if comparisons:
         several = len({r["house_seed"] for r in episodes}) > 1
         lines += [

@@ -5,13 +5,17 @@
 * :mod:`~bfsop_jax.viz.tours`: SOP tours of several planners, the decoder's distance mass;
 * :mod:`~bfsop_jax.viz.training`: the training curve, DAgger rounds;
 * :mod:`~bfsop_jax.viz.evaluation`: PPL per method and per category, the sweep chart,
-  models side by side (reward against latency), paired differences (forest plot).
+  models side by side (reward against latency), paired differences (forest plot);
+* :mod:`~bfsop_jax.viz.animation`: an episode as a GIF (belief map, path, tour ahead,
+  verified targets, budget bar) from recorded frames (plain NumPy arrays).
 
 Each ``plot_*`` function draws one picture of one thing and saves it as a PNG when given a
-path (written atomically). The package imports no training or evaluation code (those
-import it), and draws with the Agg backend, so it works without a display.
+path (written atomically); :func:`animate_episode` writes a GIF the same way. The package
+imports no agent, training or evaluation code (those import it; recorded frames come in
+as NumPy arrays), and draws with the Agg backend, so it works without a display.
 """
 
+from bfsop_jax.viz.animation import animate_episode
 from bfsop_jax.viz.evaluation import (
     plot_category_ppl,
     plot_model_comparison,
@@ -25,6 +29,7 @@ from bfsop_jax.viz.trajectories import plot_trajectories_side_by_side, plot_traj
 from bfsop_jax.viz.world import plot_belief, plot_house
 
 __all__ = [
+    "animate_episode",
     "plot_belief",
     "plot_category_ppl",
     "plot_dagger",

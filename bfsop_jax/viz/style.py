@@ -44,7 +44,7 @@ TARGET_COLOURS: tuple[str, ...] = (
 )  # fmt: skip
 TARGET_MARKERS: tuple[str, ...] = ("o", "s", "^", "D", "v", "P", "X", "*", "h")
 METHOD_COLOURS: tuple[str, ...] = (
-    "#7f7f7f", "#bcbd22", "#ff7f0e", "#2ca02c", "#1f77b4", "#9467bd",
+    "#7f7f7f", "#bcbd22", "#ff7f0e", "#2ca02c", "#1f77b4", "#9467bd", "#8c564b", "#e377c2",
 )  # fmt: skip
 BLUE, RED = "#1f77b4", "#d62728"  # Matplotlib's first and fourth default colours
 EXPLORATION_COLOUR = RED  # trajectory segments while exploring

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import matplotlib.image
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.colors import ListedColormap
@@ -33,7 +34,7 @@ if TYPE_CHECKING:  # annotations only: the viz package imports no navigation cod
     from bfsop_jax.config import Preset
     from bfsop_jax.navigation.frontiers import Frontiers
 
-__all__ = ["plot_belief", "plot_house"]
+__all__ = ["belief_image", "draw_belief", "plot_belief", "plot_house"]
 
 # Short furniture labels drawn inside the rectangles that are large enough.
 FURNITURE_LABELS: dict[str, str] = {
@@ -156,12 +157,31 @@ def plot_house(
     return _finish_map(fig, ax, room_handles + target_handles, extent, title, path)
 
 
-def _belief_image(belief: np.ndarray, known: float) -> np.ndarray:
-    """RGB image of a log-odds map: unknown grey, known free white, known occupied black."""
+def belief_image(belief: np.ndarray, known: float) -> np.ndarray:
+    """RGB image [H, W, 3] of a belief map [H, W]: unknown grey, known free white, known
+    occupied black.
+
+    ``belief`` is log-odds with ``known`` the preset's ``logodds_known``, or cell states
+    (-1 free, 0 unknown, 1 occupied, as :func:`bfsop_jax.agents.record.belief_states`
+    records them) with ``known`` 0.
+    """
+    belief = np.asarray(belief)
     img = np.full(belief.shape + (3,), UNKNOWN_GREY)
     img[belief < -known] = 1.0
     img[belief > known] = 0.0
     return img
+
+
+def draw_belief(
+    ax: plt.Axes, belief: np.ndarray, cell_size: float, known: float
+) -> matplotlib.image.AxesImage:
+    """Draw a belief map [H, W] (:func:`belief_image`) on ``ax`` with its cells of
+    ``cell_size`` metres, origin at the lower left; returns the image (an animation
+    updates it with ``set_data(belief_image(...))``)."""
+    h, w = np.shape(belief)
+    extent = (0.0, w * cell_size, 0.0, h * cell_size)
+    return ax.imshow(belief_image(belief, known), origin="lower", extent=extent,
+                     interpolation="nearest")  # fmt: skip
 
 
 def plot_belief(
@@ -193,8 +213,7 @@ def plot_belief(
         fig, ax = plt.subplots(figsize=(2.0 + w * cs / 3.2, h * cs / 3.2), dpi=110)
     else:
         fig = ax.figure
-    ax.imshow(_belief_image(belief, preset.logodds_known), origin="lower", extent=extent,
-              interpolation="nearest")  # fmt: skip
+    draw_belief(ax, belief, cs, preset.logodds_known)
     handles = []
     if frontiers is not None:
         if hasattr(frontiers, "xy"):
