@@ -2,13 +2,16 @@
 
     python -m experiments.evaluate --preset demo --house-seeds 1000000:1000010 \\
         --categories all --methods fbe,bfs_global,tfl_reactive,bfsop_vns,bfsop_st \\
-        [--checkpoint DIR] [--procthor-dir DIR] --out DIR
+        [--checkpoint DIR] [--procthor-dir DIR] [--gif N] --out DIR
 
     python -m experiments.evaluate --scan --preset demo --out DIR   # baselines, validation
 
 Writes ``DIR/results.json`` (per-method summaries and per-episode records),
 ``DIR/table1.md``, ``DIR/ppl.png``, ``DIR/ppl_per_category.png`` and
-``DIR/trajectories.png``; an interrupted run resumes from its finished chunks.
+``DIR/trajectories.png``; an interrupted run resumes from its finished chunks. ``--gif N``
+then re-runs the first N episodes of the protocol with every method, one at a time with
+the frame recorder (the same episodes), and writes them as animations to
+``DIR/gifs/{method}_{house}_{category}.gif`` (:mod:`bfsop_jax.eval.gifs`).
 
 ``--scan`` runs the baselines' parameter grid (BFS-Global's budget fraction,
 TFL-Reactive's trigger radius and timer, the BF-SOP switcher's tour horizon and yield
@@ -77,6 +80,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--devices", type=int, default=None,
                     help="split chunks over the first N local devices (default all)")  # fmt: skip
     ap.add_argument("--scan", action="store_true", help="scan baseline settings (validation)")
+    ap.add_argument("--gif", type=int, default=0, metavar="N",
+                    help="also animate every method's first N episodes (DIR/gifs/)")  # fmt: skip
     ap.add_argument("--out", default=None, help="output dir (default runs/evaluate-<preset>)")
     ap.add_argument("--no-progress", action="store_true")
     return ap.parse_args(argv)
@@ -141,6 +146,10 @@ def _check(args: argparse.Namespace) -> dict[str, Any]:
               "seeds")  # fmt: skip
     if args.batch < 1:
         _fail("--batch must be at least 1")
+    if args.gif < 0:
+        _fail("--gif must be a number of episodes (0 or more)")
+    if args.gif and args.scan:
+        _fail("--gif animates the episodes of Table I, not of --scan")
     try:
         checked["settings"] = json.loads(args.settings) if args.settings else {}
         if not isinstance(checked["settings"], dict) or not all(
@@ -202,6 +211,14 @@ def run_table1(args: argparse.Namespace, c: dict[str, Any], out: Path) -> dict[s
     )
     text = nav.write_table1(result, out / "table1.md", header)
     print(text)
+    if args.gif:
+        from bfsop_jax.eval import gifs
+
+        result["gifs"] = gifs.write_episode_gifs(
+            c["methods"], episodes[: args.gif], houses, out / "gifs", policy=c["policy"],
+            settings=c["settings"], progress=not args.no_progress,
+        )  # fmt: skip
+        print(f"{len(result['gifs'])} episode GIFs written to {out / 'gifs'}/")
     return result
 
 

@@ -1,11 +1,14 @@
-"""Run one exploration episode in a generated house and draw it.
+"""Run one episode of a navigation strategy in a generated house and draw it.
 
-    python -m experiments.simulate [--preset demo] [--seed 1000000] [--category HousePlant]
-                                   [--out runs/simulate]
+    python -m experiments.simulate [--method bfsop_st] [--preset demo] [--seed 1000000]
+                                   [--category HousePlant] [--budget M] [--checkpoint DIR]
+                                   [--gif] [--out runs/simulate]
 
-Generates a house, runs the frontier-exploration agent (FBE) until the budget gate
-closes, then writes ``house.png``, ``belief.png``, ``trajectory.png`` and
-``summary.json`` into ``--out``.
+Generates a house, runs the strategy (``fbe``, ``bfs_global``, ``tfl_reactive``,
+``bfsop_vns`` or ``bfsop_st``: BF-SOP with the shipped demo Transformer, or the one in
+``--checkpoint``) until the episode ends, then writes ``house.png``, ``belief.png``,
+``trajectory.png`` and ``summary.json`` into ``--out``; with ``--gif`` also
+``episode.gif``, the episode as an animation (:func:`bfsop_jax.viz.animate_episode`).
 """
 
 from __future__ import annotations
@@ -21,24 +24,41 @@ import numpy as np
 from tqdm import tqdm
 
 from bfsop_jax import viz
-from bfsop_jax.agents import FBE, continue_rollout, max_macro_steps
 from bfsop_jax.config import EVAL_SEED_START, PRESET_NAMES, get_preset
-from bfsop_jax.env import observe, reset
+from bfsop_jax.env import reset
+from bfsop_jax.eval import gifs
+from bfsop_jax.eval import navigation as nav
 from bfsop_jax.navigation.frontiers import frontier_clusters
+from bfsop_jax.viz.animation import MAX_FRAMES, frame_indices
 from bfsop_jax.world import TARGET_NAMES, generate_house, target_id
 
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--method", default="bfsop_st", choices=nav.METHODS + nav.ABLATIONS)
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--seed", type=int, default=EVAL_SEED_START, help="house seed")
     ap.add_argument("--category", default=None, help="target category (default: most frequent)")
     ap.add_argument("--budget", type=float, default=None, help="travel budget in metres")
+    ap.add_argument(
+        "--checkpoint", default=None, help="bfsop_st's Transformer run dir (default: shipped demo)"
+    )
+    ap.add_argument("--gif", action="store_true", help="also write episode.gif")
     ap.add_argument("--out", default="runs/simulate")
     args = ap.parse_args(argv)
     preset = get_preset(args.preset)
     if args.budget is not None and not 0 < args.budget < float("inf"):
         raise SystemExit(f"error: --budget must be a positive number of metres, got {args.budget}")
+    policy = None
+    if args.method == "bfsop_st":
+        from bfsop_jax.policy import StrategicPolicy
+
+        try:
+            policy = StrategicPolicy.load(args.checkpoint)
+        except ValueError as err:
+            raise SystemExit(f"error: --checkpoint: {err}") from None
+    strategy = nav.make_strategy(args.method, policy)
+    label = nav.LABELS[args.method]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
@@ -60,25 +80,15 @@ def main(argv: list[str] | None = None) -> dict:
         jax.random.key(args.seed), house, category, preset, None, args.budget
     )
     budget = float(state.budget)
-    start = np.asarray(state.pose)[None]
-    chunk = 10
-    fbe = FBE()
-    memory = fbe.init(observe(state), preset)
-    run_chunk = jax.jit(lambda s, m: continue_rollout(s, m, fbe, preset, chunk))
-    n_chunks = math.ceil(max_macro_steps(budget, preset) / chunk)
-    trajectories = []
-    with tqdm(total=math.ceil(budget), desc="exploring", unit="m") as bar:
-        for _ in range(n_chunks):
-            state, memory, traj = run_chunk(state, memory)
-            trajectories.append(jax.device_get(traj))
-            bar.update(int(float(state.path_length)) - bar.n)
-            if bool(state.done) or not bool(traj.active[-1]):
-                break
+    recorder = gifs.make_recorder(strategy, preset)
+    with tqdm(total=math.ceil(budget), desc=label, unit="m") as bar:
+        recording = recorder.record(state, progress=lambda m: bar.update(int(m) - bar.n))
+    state, frames = recording.final, recording.frames
 
-    poses = np.concatenate([start] + [t.poses[t.moved] for t in trajectories])
     found = np.asarray(state.found)
     lois = np.asarray(state.landmarks_seen)
     summary = {
+        "method": args.method,
         "preset": preset.name,
         "house_seed": args.seed,
         "category": TARGET_NAMES[category],
@@ -88,7 +98,8 @@ def main(argv: list[str] | None = None) -> dict:
         "path_length_m": float(state.path_length),
         "budget_m": budget,
         "landmarks_of_interest_seen": int(lois.sum()),
-        "macro_steps": int(sum(t.active.sum() for t in trajectories)),
+        "macro_steps": int(np.asarray(recording.trajectory.active).sum()),
+        "tours": int(np.asarray(recording.trajectory.switched).sum()),
         "wall_time_s": time.perf_counter() - t0,
     }
     name = TARGET_NAMES[category]
@@ -103,12 +114,18 @@ def main(argv: list[str] | None = None) -> dict:
         title=f"belief after {summary['path_length_m']:.0f} m (landmarks of interest for {name})",
     )
     viz.plot_trajectory(
-        poses,
+        frames.path_xy,
         out / "trajectory.png",
         house=house,
+        touring=frames.path_touring,
         found_xy=np.asarray(house.object_xy)[found],
-        title=f"FBE for {name}: found {summary['found']}/{summary['instances']}",
+        title=f"{label} for {name}: found {summary['found']}/{summary['instances']}",
     )
+    if args.gif:
+        title = f"{label}: {name} in house {args.seed} ({preset.name})"
+        gif = viz.animate_episode(frames, out / "episode.gif", title)
+        summary["gif_frames"] = len(frame_indices(frames.n_frames, MAX_FRAMES))
+        summary["gif_bytes"] = gif.stat().st_size
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps(summary, indent=1))
     print(f"figures written to {out}/")

@@ -160,6 +160,36 @@ def test_a_methods_files_are_never_anothers(tmp_path):
     assert set(files("tfl_reactive_gain", "*")) == set(names[5:])
 
 
+def test_gif_animates_the_first_episodes_as_evaluated(table1, tmp_path, monkeypatch):
+    """``--gif N`` re-runs the protocol's first N episodes with the frame recorder (never
+    the batched path: the finished chunks are reused) and gets the evaluated episodes
+    (test_animation.py checks N > 1 and several methods with a stubbed recording)."""
+    import shutil
+
+    from PIL import Image
+
+    from bfsop_jax.viz.animation import MAX_FRAMES
+
+    out, _ = table1
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    monkeypatch.setattr(nav._Runner, "run", lambda *a: pytest.fail("an episode ran again"))
+    args = [a if a != "fbe,bfsop_st" else "fbe" for a in ARGS]
+    result = evaluate.main(args + ["--gif", "1", "--out", str(run)])
+    first = [r for r in result["episodes"] if r["method"] == "fbe"][:1]
+    names = [f"fbe_{r['house']}_{r['category']}.gif" for r in first]
+    assert [g["gif"] for g in result["gifs"]] == names
+    assert sorted(p.name for p in (run / "gifs").iterdir()) == sorted(names)
+    for gif, r in zip(result["gifs"], first, strict=True):
+        assert (gif["found"], gif["total"]) == (r["found"], r["total"])
+        assert gif["path_length"] == pytest.approx(r["path_length_end"], abs=1e-4)
+        with Image.open(run / "gifs" / gif["gif"]) as im:
+            assert im.n_frames == min(gif["frames"], MAX_FRAMES)
+    assert "gifs" not in json.loads((run / "results.json").read_text())
+    with pytest.raises(SystemExit, match="--gif animates the episodes of Table I"):
+        evaluate.main(["--scan", "--gif", "1", "--out", str(tmp_path / "scan")])
+
+
 def test_resume_refuses_another_protocol(table1):
     out, _ = table1
     other = [a if a != "Apple,HousePlant" else "Apple" for a in ARGS]
@@ -176,6 +206,7 @@ def test_resume_refuses_another_protocol(table1):
         ("--house-seeds", "10:20", "training houses"),
         ("--checkpoint", "/nonexistent/run", "--checkpoint"),
         ("--batch", "0", "--batch"),
+        ("--gif", "-1", "--gif must be a number of episodes"),
         ("--settings", '{"transformer": {"beam": 4}}', "unexpected keyword argument 'beam'"),
         ("--settings", '{"planner": {}}', "unknown key 'planner'"),
         ("--settings", '{"transformer": {"best_of": 0}}', "best_of must be a positive int"),
