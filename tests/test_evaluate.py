@@ -301,7 +301,8 @@ def test_explorer_settings_reach_every_method(method):
         strategy = make_strategy(method, object(), settings)
         return (strategy if method == "fbe" else strategy.explorer).config
 
-    own = 0.0 if method in nav.BASELINES else EXPLORER.gain_weight_m
+    nearest_first = nav.BASELINES + nav.CANDIDATE_METHODS
+    own = 0.0 if method in nearest_first else EXPLORER.gain_weight_m
     assert explorer(None).gain_weight_m == own  # the baselines: nearest frontier first
     kept = explorer({"explorer": {"patience": 3}})  # overrides go on top of the method's own
     assert (kept.gain_weight_m, kept.patience) == (own, 3)

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from bfsop_jax.agents.fbe import FBE
 from bfsop_jax.agents.rollout import Decision, explore_decision
 from bfsop_jax.config import Preset
 from bfsop_jax.env.candidates import (
@@ -89,6 +90,11 @@ class CandidateAgent:
         if self.policy not in CANDIDATE_POLICIES:
             names = ", ".join(CANDIDATE_POLICIES)
             raise ValueError(f"unknown candidate policy {self.policy!r}; policies are {names}")
+
+    @property
+    def explorer(self) -> FBE:
+        """The frontier bookkeeping's numbers, as the other strategies' explorer."""
+        return FBE(self.config.explorer)
 
     def init(self, obs: Observation, preset: Preset) -> CandidateAgentMemory:
         memory = init_candidates(obs, preset, self.config)

@@ -208,10 +208,11 @@ class NavigationEnv:
         """One macro action: ``(obs, state, reward, terminated, truncated, info)``.
 
         ``key`` is accepted for gymnax compatibility; the simulator is deterministic.
-        ``info`` reports the step (``travelled``, ``arrived``, ``blocked``, the motion
-        steps' ``poses`` [K, 3]) and the episode so far (``found``, ``n_targets``,
-        ``progress``, ``path_length``, ``last_find_length``, ``start_xy``, ``house``,
-        ``category``, ``found_mask`` [M]), all of the stepped state (before any reset).
+        ``info`` reports the step (``travelled`` metres, ``motion_steps`` that moved,
+        ``arrived``, ``blocked``, the motion steps' ``poses`` [K, 3]) and the episode so
+        far (``found``, ``n_targets``, ``progress``, ``path_length``,
+        ``last_find_length``, ``start_xy``, ``house``, ``category``, ``found_mask`` [M]),
+        all of the stepped state (before any reset).
         """
         del key
         sim = state.env
@@ -253,6 +254,7 @@ class NavigationEnv:
         state = state.replace(rewarded=found, stopped=terminated)
         info_out = {
             "travelled": jnp.where(running, info.travelled, 0.0),
+            "motion_steps": jnp.where(running, info.moved.sum(dtype=jnp.int32), 0),
             "arrived": running & info.arrived,
             "blocked": running & info.blocked,
             "poses": jnp.where(running, info.poses, sim.pose),
