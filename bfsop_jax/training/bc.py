@@ -17,15 +17,18 @@ Dataset format (a dict of NumPy arrays, leading axis D; the table is
 :data:`bfsop_jax.data.schema.RECORD_FIELDS`, see :func:`instances_from_dataset`):
 ``coords [D, N, 2]``, ``cost [D, N, N]``, ``set_id [D, N]``, ``set_reward [D, K]``,
 ``budget [D]``, ``teacher_nodes [D, K + 1]``; node 0 is the start, paths are open.
+
+The pieces live in their own modules, all importable from here: the datasets and their
+batches in :mod:`bfsop_jax.training.dataset`, the training program (optimiser, losses,
+epoch and evaluation programs) in :mod:`bfsop_jax.training.program`, the run directory's
+bookkeeping in :mod:`bfsop_jax.training.run_dir`; this module runs the training loop
+(:func:`train`).
 """
 
 from __future__ import annotations
 
-import collections
 import dataclasses
-import functools
 import itertools
-import math
 import os
 import signal
 import threading
@@ -37,19 +40,43 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
-from flax import nnx, struct
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from flax import nnx
+from jax.sharding import Mesh
 
 from bfsop_jax import checkpoint as ckpt
-from bfsop_jax.data.schema import DATASET_KEYS, check_records, make_records
-from bfsop_jax.model.decode import decode, forced_logits, teacher_forced_logits
-from bfsop_jax.model.features import node_features, random_symmetry
-from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
-from bfsop_jax.parallel import DATA_AXIS, barrier, mesh_size, place, to_host
-from bfsop_jax.sop.types import Solution, SOPInstance, plan_length, validate
+from bfsop_jax.data.schema import DATASET_KEYS
+from bfsop_jax.model.transformer import StrategicTransformer
+from bfsop_jax.parallel import barrier, mesh_size, place, to_host
 from bfsop_jax.training.config import Replica, RunConfig, TrainConfig
-from bfsop_jax.training.metrics import MetricsLog, imitation_stats
+from bfsop_jax.training.dataset import (
+    _check_dataset,
+    dataset_from_instances,
+    dataset_info,
+    instances_from_dataset,
+)
+from bfsop_jax.training.dataset import padded_batches as padded_batches
+from bfsop_jax.training.metrics import MetricsLog
+from bfsop_jax.training.program import (
+    TRACE_COUNTS,
+    Hyper,
+    TrainState,
+    _epoch_key,
+    evaluate_imitation,
+    init_states,
+    learning_rate,
+    lr_factor,
+    make_evaluate,
+    make_optimizer,
+    make_train_epoch,
+)
+from bfsop_jax.training.program import _student_forcing as _student_forcing
+from bfsop_jax.training.run_dir import (
+    _last_losses,
+    _meta,
+    _prepare_run_dir,
+    _save_replica,
+)
+from bfsop_jax.training.run_dir import latest_best_params as latest_best_params
 
 __all__ = [
     "DATASET_KEYS",  # re-exported from bfsop_jax.data.schema
@@ -70,441 +97,6 @@ __all__ = [
     "make_train_epoch",
     "train",
 ]
-
-
-# -- data ------------------------------------------------------------------------------------
-def _check_dataset(ds: Mapping[str, Any], name: str = "dataset") -> dict[str, np.ndarray]:
-    """Typed copy of the arrays the trainer uses; ValueError naming the problem.
-
-    Keys, dtypes and shapes come from :data:`bfsop_jax.data.schema.RECORD_FIELDS`, the
-    instances are checked by :func:`bfsop_jax.sop.types.validate` (start 0, open path), the
-    teacher plans here.
-    """
-    out = check_records(ds, name)
-    d, n = out["set_id"].shape
-    if d == 0:
-        raise ValueError(f"{name} is empty (D = 0)")
-    try:
-        validate(_dataset_instances(out))
-    except ValueError as err:
-        raise ValueError(f"{name}: {err}") from None
-    teacher = out["teacher_nodes"]
-    if (teacher[:, 0] != 0).any():
-        raise ValueError(f"{name}: teacher_nodes must start at node 0 (the start)")
-    if ((teacher < -1) | (teacher >= n)).any():
-        raise ValueError(f"{name}: teacher_nodes outside [-1, {n})")
-    return out
-
-
-def _dataset_instances(data: Mapping[str, np.ndarray]) -> SOPInstance:
-    """Batched instances [D] of typed dataset arrays: start node 0, open paths."""
-    d = data["set_id"].shape[0]
-    return SOPInstance(
-        cost=data["cost"],
-        set_id=data["set_id"],
-        set_reward=data["set_reward"],
-        start=np.zeros(d, np.int32),
-        end=np.full(d, -1, np.int32),
-        budget=data["budget"],
-        coords=data["coords"],
-    )
-
-
-def instances_from_dataset(ds: Mapping[str, Any]) -> SOPInstance:
-    """Batched :class:`SOPInstance` (NumPy leaves, leading axis D) of a dataset dict.
-
-    Start node 0, open paths (end = -1). Extra keys of ``ds`` are ignored.
-    """
-    return _dataset_instances(_check_dataset(ds))
-
-
-def dataset_from_instances(
-    instances: Sequence[SOPInstance], solutions: Sequence[Solution]
-) -> dict[str, np.ndarray]:
-    """Dataset dict (the format above) from single open-path instances and their plans.
-
-    Every instance must have the same N and K, start node 0 and ``end == -1``; a plan is
-    start first, then visited nodes (``Solution.nodes`` may be padded with -1).
-    """
-    if len(instances) != len(solutions) or not instances:
-        raise ValueError("need one solution per instance and at least one instance")
-    insts = [inst.to_numpy() for inst in instances]
-    k = insts[0].num_sets
-    for i, inst in enumerate(insts):
-        if int(inst.start) != 0 or int(inst.end) != -1:
-            raise ValueError(f"instance {i}: the dataset format needs start 0 and an open path")
-    teacher = np.stack([np.asarray(sol.padded(plan_length(k)).nodes) for sol in solutions])
-    ds = {  # typed by the record table (dtypes and order)
-        "coords": np.stack([inst.coords for inst in insts]),
-        "cost": np.stack([inst.cost for inst in insts]),
-        "set_id": np.stack([inst.set_id for inst in insts]),
-        "set_reward": np.stack([inst.set_reward for inst in insts]),
-        "budget": np.stack([inst.budget for inst in insts]),
-        "teacher_nodes": teacher,
-        "teacher_reward": np.asarray([sol.reward for sol in solutions]),
-        "teacher_cost": np.asarray([sol.cost for sol in solutions]),
-    }
-    ds = make_records(ds, complete=False)
-    _check_dataset(ds)
-    return ds
-
-
-def _instances(batch: Mapping[str, jax.Array]) -> SOPInstance:
-    b = batch["set_id"].shape[0]
-    return SOPInstance(
-        cost=batch["cost"],
-        set_id=batch["set_id"],
-        set_reward=batch["set_reward"],
-        start=jnp.zeros(b, jnp.int32),
-        end=jnp.full(b, -1, jnp.int32),
-        budget=batch["budget"],
-        coords=batch["coords"],
-    )
-
-
-def dataset_info(ds: Mapping[str, Any]) -> dict[str, int]:
-    """Sizes of a dataset: instances D, nodes N, sets K, step-level transitions."""
-    data = _check_dataset(ds)
-    d, n = data["set_id"].shape
-    return {
-        "instances": int(d),
-        "num_nodes": int(n),
-        "num_sets": int(data["set_reward"].shape[1]),
-        "transitions": int(np.sum(data["teacher_nodes"] >= 0)),  # m nodes + END each
-    }
-
-
-# -- the functional training program --------------------------------------------------------
-@struct.dataclass
-class Hyper:
-    """One replica's recipe numbers as traced scalars (stacked: a leading replica axis)."""
-
-    lr: Any  # [] float32: base learning rate
-    grad_clip: Any  # [] float32: global-norm clipping threshold
-    lr_decay: Any  # [] float32: staircase decay factor ...
-    decay_every: Any  # [] float32: ... every this many epochs
-    warmup_epochs: Any  # [] float32: linear warm-up length (0: none)
-    label_smoothing: Any  # [] float32: uniform-target weight over the allowed entries
-    augment: Any  # [] bool: show instances under random coordinate symmetries
-    on_policy: Any  # [] float32: weight of the loss on the student's own states
-
-    @classmethod
-    def of(cls, replica: Replica) -> Hyper:
-        f32 = jnp.float32
-        return cls(
-            lr=f32(replica.lr),
-            grad_clip=f32(replica.grad_clip),
-            lr_decay=f32(replica.lr_decay),
-            decay_every=f32(replica.decay_every),
-            warmup_epochs=f32(replica.warmup_epochs),
-            label_smoothing=f32(replica.label_smoothing),
-            augment=jnp.bool_(replica.augment),
-            on_policy=f32(replica.on_policy),
-        )
-
-
-@struct.dataclass
-class TrainState:
-    """One replica's training state (a leading replica axis when stacked)."""
-
-    params: Any  # nnx.State of the model's nnx.Param leaves
-    opt_state: Any  # clip + Adam state (moments, counts)
-    step: Any  # [] int32: optimiser steps taken
-    hyper: Hyper  # this replica's recipe numbers
-
-
-def make_optimizer(grad_clip: float | jax.Array) -> optax.GradientTransformation:
-    """Clip by global norm, then Adam's scaling; the learning rate is applied per replica."""
-    return optax.chain(optax.clip_by_global_norm(grad_clip), optax.scale_by_adam())
-
-
-def lr_factor(step: Any, decay_steps: Any, lr_decay: Any) -> jax.Array:
-    """Staircase step decay: ``lr_decay ** floor(step / decay_steps)`` (optimiser steps)."""
-    return lr_decay ** jnp.floor(step / decay_steps)
-
-
-def learning_rate(hyper: Hyper, step: Any, steps_per_epoch: int) -> jax.Array:
-    """Learning rate of optimiser step ``step`` (0-based): warm-up, then staircase decay."""
-    warm = jnp.minimum(1.0, (step + 1) / jnp.maximum(hyper.warmup_epochs * steps_per_epoch, 1.0))
-    warm = jnp.where(hyper.warmup_epochs > 0, warm, 1.0)
-    decay = lr_factor(step, hyper.decay_every * steps_per_epoch, hyper.lr_decay)
-    return hyper.lr * warm * decay
-
-
-def init_states(
-    model_config: ModelConfig,
-    train_config: TrainConfig,
-    seeds: Sequence[int] = (),
-    lrs: Sequence[float] = (),
-    *,
-    replicas: Sequence[Replica] | None = None,
-    init_params: Any = None,
-) -> tuple[nnx.GraphDef, TrainState]:
-    """Graph definition and stacked initial states of the replicas.
-
-    The replicas are ``replicas`` when given, otherwise ``zip(seeds, lrs)`` with the
-    recipe's other numbers. ``init_params`` (the ``nnx.Param`` state of a model of the
-    same config) starts every replica from those weights with a fresh optimiser
-    (fine-tuning, DAgger rounds) instead of a seeded initialisation.
-    """
-    if replicas is None:
-        replicas = [Replica.of(train_config, s, lr) for s, lr in zip(seeds, lrs, strict=True)]
-    if not replicas:
-        raise ValueError("init_states needs at least one replica")
-    graphdef, states = None, []
-    for rep in replicas:
-        model = StrategicTransformer(model_config, rngs=nnx.Rngs(params=_init_key(rep.seed)))
-        graphdef, params = nnx.split(model, nnx.Param)
-        if init_params is not None:
-            try:
-                params = jax.tree_util.tree_map(
-                    lambda fresh, given: jnp.asarray(given, fresh.dtype).reshape(fresh.shape),
-                    params, init_params,
-                )  # fmt: skip
-            except (ValueError, TypeError) as err:
-                raise ValueError(f"init_params do not match the model config: {err}") from None
-        states.append(
-            TrainState(
-                params=params,
-                opt_state=make_optimizer(rep.grad_clip).init(params),
-                step=jnp.int32(0),
-                hyper=Hyper.of(rep),
-            )
-        )
-    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *states)
-    return graphdef, _committed(stacked)
-
-
-def _committed(tree: Any) -> Any:
-    """Place arrays on the default device explicitly: jit caches committed and uncommitted
-    inputs separately, and the epoch's outputs are committed."""
-    return place(tree, None)
-
-
-def _init_key(seed: int) -> jax.Array:
-    return jax.random.fold_in(jax.random.key(seed), 0)
-
-
-def _epoch_key(seed: int, epoch: int) -> jax.Array:
-    """Shuffle key of an epoch: a function of (seed, epoch) only, so a resume is exact."""
-    return jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), 1), epoch)
-
-
-def _teacher_forcing(
-    graphdef: nnx.GraphDef,
-    params: Any,
-    batch: Mapping[str, jax.Array],
-    key: jax.Array | None = None,
-    features: Any = None,
-):
-    """Teacher-forced decoder outputs on a minibatch, with its ``features`` (e.g. from
-    :func:`_augmented`; None: the plain ones); with ``key`` an insertion decoder sees the
-    teacher's nodes enter in a random order drawn from it (without: a fixed order)."""
-    model = nnx.merge(graphdef, params)
-    order_key = None if key is None else jax.random.fold_in(key, 1)
-    return teacher_forced_logits(model, _instances(batch), batch["teacher_nodes"], features,
-                                 order_key)  # fmt: skip
-
-
-def _augmented(batch: Mapping[str, jax.Array], key: jax.Array, augment: Any):
-    """Every instance's features under a random one of the 8 coordinate symmetries drawn
-    from ``key`` (``augment`` traced false: the identity)."""
-    return random_symmetry(node_features(_instances(batch)), key, augment)
-
-
-def _student_forcing(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array],
-                     features, key: jax.Array):  # fmt: skip
-    """The insertion decoder on its own states: half the minibatch's plans greedy, half
-    sampled (temperature 1) by the current parameters (no gradient through the plans),
-    each state labelled by the teacher's nodes it still allows (DAgger at the level of
-    decoding steps, with the teacher's plan as the oracle)."""
-    inst = _instances(batch)
-    rows = inst.set_id.shape[0]
-    frozen = nnx.merge(graphdef, jax.lax.stop_gradient(params))
-    trace = decode(frozen, inst, key, greedy=jnp.arange(rows) % 2 == 0, features=features)
-    model = nnx.merge(graphdef, params)
-    return forced_logits(model, inst, trace.choices, features, teacher_nodes=batch["teacher_nodes"])
-
-
-def _batch_stats(graphdef: nnx.GraphDef, params: Any, batch: Mapping[str, jax.Array], weight=None):
-    """Summed imitation stats [3] of a minibatch (see ``imitation_stats``)."""
-    return imitation_stats(_teacher_forcing(graphdef, params, batch), weight)
-
-
-def _smoothing_nll(tf) -> jax.Array:
-    """Summed cross-entropy of the uniform distribution over each valid step's allowed
-    entries (the label-smoothing term)."""
-    allowed = tf.allowed
-    count = jnp.maximum(jnp.sum(allowed, axis=-1), 1)
-    uniform = -jnp.sum(jnp.where(allowed, tf.log_probs, 0.0), axis=-1) / count
-    return jnp.sum(jnp.where(tf.valid, uniform, 0.0))
-
-
-TRACE_COUNTS: collections.Counter[str] = collections.Counter()
-"""How often each training program was traced (a test that a sweep group compiles once)."""
-
-
-def make_train_epoch(
-    graphdef: nnx.GraphDef,
-    config: TrainConfig,
-    num_instances: int,
-    *,
-    augment: bool | None = None,
-    smoothing: bool | None = None,
-    on_policy: bool | None = None,
-    mesh: Mesh | None = None,
-    shard: str = "replicas",
-) -> Callable[[TrainState, dict[str, jax.Array], jax.Array], tuple[TrainState, jax.Array]]:
-    """Jitted ``train_epoch(states, data, keys) -> (states, stats)`` over stacked replicas.
-
-    ``states``: :class:`TrainState` with a leading replica axis R; ``data``: dataset dict of
-    device arrays (shared by the replicas); ``keys``: [R] shuffle keys. ``stats`` [R, 3]:
-    summed NLL, correct arg-max steps, valid steps over the epoch. The program is compiled
-    once per (model graph, batch size, D, replica count, the two flags below, placement):
-    every recipe number lives in ``states.hyper``, so replicas that differ only in them, or
-    runs that differ in epochs, share it.
-
-    ``augment`` / ``smoothing`` / ``on_policy``: compile the symmetry augmentation / the
-    label-smoothing term / the loss on the student's own states (insertion decoder) in
-    (default: the recipe's setting); each replica's ``hyper`` then says whether it
-    augments, how much it smooths and what weight its own states get. ``mesh`` with
-    ``shard="batch"``: every minibatch is split over the mesh's ``data`` axis
-    (``shard="replicas"`` needs nothing inside the program: the placement of ``states``
-    decides).
-    """
-    batch_size = min(config.batch_size, num_instances)
-    return functools.partial(
-        _train_epoch,
-        graphdef=graphdef,
-        batch_size=batch_size,
-        num_instances=num_instances,
-        augment=config.augment if augment is None else bool(augment),
-        smoothing=config.label_smoothing > 0 if smoothing is None else bool(smoothing),
-        on_policy=config.on_policy > 0 if on_policy is None else bool(on_policy),
-        batch_mesh=mesh if shard == "batch" else None,
-    )
-
-
-@functools.partial(
-    jax.jit,
-    static_argnames=(
-        "graphdef", "batch_size", "num_instances", "augment", "smoothing", "on_policy",
-        "batch_mesh",
-    ),
-)  # fmt: skip
-def _train_epoch(
-    states,
-    data,
-    keys,
-    *,
-    graphdef,
-    batch_size: int,
-    num_instances: int,
-    augment: bool,
-    smoothing: bool,
-    on_policy: bool,
-    batch_mesh: Mesh | None,
-):
-    TRACE_COUNTS["train_epoch"] += 1
-    num_batches = num_instances // batch_size
-
-    def loss(params, batch, key, hyper: Hyper):
-        # one symmetry per instance for both losses (left out of the program unless some
-        # replica augments); the key also draws an insertion decoder's order of entry
-        features = _augmented(batch, key, hyper.augment) if augment else None
-        tf = _teacher_forcing(graphdef, params, batch, key=key, features=features)
-        stats = imitation_stats(tf)
-        total, steps = stats[0], stats[2]
-        if smoothing:
-            eps = hyper.label_smoothing
-            total = (1.0 - eps) * total + eps * _smoothing_nll(tf)
-        if on_policy:  # the student's own states join with weight hyper.on_policy
-            own = imitation_stats(
-                _student_forcing(graphdef, params, batch, features, jax.random.fold_in(key, 2))
-            )
-            total = total + hyper.on_policy * own[0]
-            steps = steps + hyper.on_policy * own[2]
-        return total / jnp.maximum(steps, 1.0), stats
-
-    def epoch(state: TrainState, key: jax.Array):
-        shuffle, sym = jax.random.split(key)
-        order = jax.random.permutation(shuffle, num_instances)[: num_batches * batch_size]
-        sym_keys = jax.random.split(sym, num_batches)
-        tx = make_optimizer(state.hyper.grad_clip)
-
-        def minibatch(state: TrainState, xs):
-            idx, sym_key = xs
-            batch = jax.tree_util.tree_map(lambda x: x[idx], data)
-            if batch_mesh is not None:
-                batch = jax.lax.with_sharding_constraint(
-                    batch, NamedSharding(batch_mesh, PartitionSpec(DATA_AXIS))
-                )
-            grads, stats = jax.grad(loss, has_aux=True)(state.params, batch, sym_key, state.hyper)
-            updates, opt_state = tx.update(grads, state.opt_state, state.params)
-            lr = learning_rate(state.hyper, state.step, num_batches)
-            updates = jax.tree_util.tree_map(lambda u: -lr * u, updates)
-            params = optax.apply_updates(state.params, updates)
-            return state.replace(params=params, opt_state=opt_state, step=state.step + 1), stats
-
-        state, stats = jax.lax.scan(
-            minibatch, state, (order.reshape(num_batches, batch_size), sym_keys)
-        )
-        return state, jnp.sum(stats, axis=0)
-
-    return jax.vmap(epoch)(states, keys)
-
-
-def make_evaluate(
-    graphdef: nnx.GraphDef, batch_size: int, num_instances: int
-) -> Callable[[Any, dict[str, jax.Array]], jax.Array]:
-    """Jitted ``evaluate(params, data) -> stats [R, 3]`` over every instance of ``data``.
-
-    The last minibatch is padded with repeated instances of weight 0, so all count once.
-    """
-    return functools.partial(
-        _evaluate, graphdef=graphdef, batch_size=batch_size, num_instances=num_instances
-    )
-
-
-def padded_batches(num_instances: int, batch_size: int) -> tuple[jax.Array, jax.Array]:
-    """Minibatches covering every instance once: index [M, batch] int32 (the last batch
-    padded with repeated instances) and weight [M, batch] float32 (0 on the padding)."""
-    num_batches = math.ceil(num_instances / batch_size)
-    slots = np.arange(num_batches * batch_size)
-    index = jnp.asarray((slots % num_instances).reshape(num_batches, batch_size), jnp.int32)
-    weight = jnp.asarray((slots < num_instances).reshape(num_batches, batch_size), jnp.float32)
-    return index, weight
-
-
-@functools.partial(jax.jit, static_argnames=("graphdef", "batch_size", "num_instances"))
-def _evaluate(params, data, *, graphdef, batch_size: int, num_instances: int):
-    index, weight = padded_batches(num_instances, min(batch_size, num_instances))
-
-    def evaluate(params):
-        def minibatch(total, xs):
-            idx, w = xs
-            batch = jax.tree_util.tree_map(lambda x: x[idx], data)
-            return total + _batch_stats(graphdef, params, batch, w), None
-
-        total, _ = jax.lax.scan(minibatch, jnp.zeros(3, jnp.float32), (index, weight))
-        return total
-
-    return jax.vmap(evaluate)(params)
-
-
-def evaluate_imitation(
-    model: StrategicTransformer, ds: Mapping[str, Any], batch_size: int = 64
-) -> dict[str, float]:
-    """Teacher-forced loss and next-node accuracy of one model on a dataset."""
-    data = _device_data(ds)
-    graphdef, params = nnx.split(model, nnx.Param)
-    fn = make_evaluate(graphdef, batch_size, data["set_id"].shape[0])
-    stats = np.asarray(fn(jax.tree_util.tree_map(lambda x: x[None], params), data))[0]
-    return {"loss": float(stats[0] / max(stats[2], 1)), "acc": float(stats[1] / max(stats[2], 1))}
-
-
-def _device_data(ds: Mapping[str, Any]) -> dict[str, jax.Array]:
-    return place(_check_dataset(ds), None)
 
 
 # -- the run --------------------------------------------------------------------------------
@@ -778,86 +370,6 @@ def _shard_mode(mesh: Mesh | None, num_replicas: int, batch_size: int) -> str:
         f"cannot spread {num_replicas} replicas with minibatches of {batch_size} over {n} "
         "devices: one of the two must divide by the device count"
     )
-
-
-def _save_replica(
-    rep_dir: Path,
-    run_config: dict[str, Any],
-    replica: dict[str, Any],
-    index: int,
-    losses: list[float],
-    epochs: int,
-    params: Any,
-) -> None:
-    """A replica's own run directory: ``config.json`` (one replica) and ``model/``."""
-    rep_dir.mkdir(parents=True, exist_ok=True)
-    ckpt.save_model(rep_dir, jax.tree_util.tree_map(lambda x: x[index], params))
-    summary = {**run_config, "replicas": [replica]}
-    summary["result"] = {
-        "best_replica": 0,
-        **replica,
-        "selection_loss": losses[index] if losses else None,
-        "epochs": epochs,
-    }
-    ckpt.write_config(rep_dir, summary)
-
-
-def latest_best_params(
-    run_dir: str | os.PathLike, config: dict[str, Any], model_config: ModelConfig
-) -> Any:
-    """Parameters of the best replica in the last epoch checkpoint of a run directory
-    (``config``: its ``config.json``); ValueError when there is none."""
-    run_dir = Path(run_dir)
-    replicas = config.get("replicas") or []
-    if not replicas:
-        raise ValueError(f"{run_dir / ckpt.CONFIG_FILE} lists no replicas")
-    train_config = TrainConfig.from_dict(config["run"]["train"])
-    members = [Replica.from_dict(r, train_config) for r in replicas]
-    states = jax.eval_shape(lambda: init_states(model_config, train_config, replicas=members)[1])
-    with ckpt.CheckpointStore(run_dir, read_only=True) as store:
-        if store.latest_epoch() is None:
-            raise ValueError(f"no checkpoint in {run_dir} (neither model/ nor an epoch checkpoint)")
-        state, meta = store.restore(states)
-    best = int(meta.get("best_replica", 0))
-    return jax.tree_util.tree_map(lambda x: x[best], state.params)
-
-
-def _meta(epoch: int, losses: list[float]) -> dict[str, Any]:
-    best = int(np.nanargmin(losses)) if losses else 0
-    return {"epoch": epoch, "selection_loss": losses, "best_replica": best}
-
-
-def _last_losses(rows: list[dict[str, Any]], replicas: int, epoch: int) -> list[float]:
-    mine = [r for r in rows if r["epoch"] == epoch]
-    if len(mine) != replicas:
-        return []
-    mine.sort(key=lambda r: r["replica"])
-    return [r["val_loss"] if r.get("val_loss") is not None else r["train_loss"] for r in mine]
-
-
-def _prepare_run_dir(run_dir: Path, run_config: dict[str, Any], resume: bool) -> None:
-    run_dir.mkdir(parents=True, exist_ok=True)
-    has_checkpoints = (run_dir / ckpt.CHECKPOINT_DIR).is_dir() and any(
-        p.name.isdigit() for p in (run_dir / ckpt.CHECKPOINT_DIR).iterdir()
-    )
-    if (run_dir / ckpt.CONFIG_FILE).exists() and has_checkpoints:
-        if not resume:
-            raise ValueError(
-                f"{run_dir} already holds a training run; pass resume=True to continue it "
-                "or choose a new directory"
-            )
-        old = ckpt.read_config(run_dir)
-        for key in ("run", "replicas"):
-            if old.get(key) != run_config[key]:
-                raise ValueError(
-                    f"cannot resume {run_dir}: its {key} differs from this call "
-                    f"({old.get(key)} != {run_config[key]})"
-                )
-        for key in ("num_nodes", "num_sets", "train"):
-            if old.get("dataset", {}).get(key) != run_config["dataset"][key]:
-                raise ValueError(f"cannot resume {run_dir}: the training data differ ({key})")
-        return
-    ckpt.write_config(run_dir, run_config)
 
 
 def _install_sigterm():

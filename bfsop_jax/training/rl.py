@@ -57,7 +57,7 @@ from bfsop_jax.model.decode import decode, forced_logits, plan_value, teacher_fo
 from bfsop_jax.model.features import node_features, random_symmetry
 from bfsop_jax.model.transformer import ModelConfig, StrategicTransformer
 from bfsop_jax.sop.two_opt import budget_gate
-from bfsop_jax.training.bc import (
+from bfsop_jax.training.dataset import (
     _check_dataset,
     _device_data,
     _instances,
