@@ -107,7 +107,7 @@ def run(preset_name: str, batches: list[int], steps: int, repeats: int) -> dict:
             ),
         }
         for name, (fn, args) in cases.items():
-            t = time_calls(fn, *args, repeats=repeats)
+            t = time_calls(fn, *args, repeats=repeats if b < 256 else 1)
             moves = int(fn(*args))
             rows.append({
                 "batch": b, "case": name, "scan": n, "compile_s": t.first_s - t.median,

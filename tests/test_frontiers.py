@@ -125,6 +125,19 @@ def test_unknown_count_matches_a_box_sum():
     assert got[0] == 9 and got[1] > 20  # the pocket's 3 x 3 cells; the open door
 
 
+def test_unknown_count_equals_counting_the_square_cell_by_cell():
+    """The box filter against the plain count, for centres inside and beyond the map."""
+    from bfsop_jax.navigation.frontiers import _unknown_around
+
+    rng = np.random.default_rng(0)
+    unknown = jnp.asarray(rng.random((30, 40)) < 0.4)
+    cells = np.stack([rng.integers(-12, 45, 300), rng.integers(-12, 55, 300)], -1)
+    for radius in (0, 2, 10):
+        got = unknown_count(unknown, cells.astype(np.int32), radius)
+        plain = _unknown_around(unknown, cells.astype(np.int32), radius)[0].sum(-1)
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(plain))
+
+
 def test_gain_bonus_prefers_the_door_to_a_nearer_pocket():
     b, agent = pocket_and_door_room()
     fr = _clusters(b, PRESET)

@@ -91,7 +91,15 @@ def sparse_cond(
             )
 
         rounds = (count + size - 1) // size
-        out = jax.lax.fori_loop(0, rounds, one_round, cheap(operands))
+        # inside a cond, so XLA cannot hoist the loop-invariant part of the expensive
+        # branch out of the loop and run it on every call (a house generator's constant
+        # tables, say) when no row asks
+        out = jax.lax.cond(
+            count > 0,
+            lambda ops: jax.lax.fori_loop(0, rounds, one_round, cheap(ops)),
+            cheap,
+            operands,
+        )
         return out, jax.tree_util.tree_map(lambda _: True, out)
 
     return run(jnp.asarray(pred, bool), operands)

@@ -12,8 +12,9 @@ observed only (its belief map, pose, budget and the objects it has detected):
   the category, not yet visited), the L of highest reward
   (:func:`bfsop_jax.sop.builder.select_landmarks`), each at its best viewpoint: of the
   SOP builder's candidate viewpoints around its footprint
-  (:func:`bfsop_jax.sop.builder.viewpoint_candidates`), the free one nearest the agent
-  (at its planning cell's centre); on arrival the agent faces the landmark.
+  (:func:`bfsop_jax.sop.builder.viewpoint_candidates`), the reachable one on the
+  tightest ring around the footprint, nearest the agent among those (at its planning
+  cell's centre); on arrival the agent faces the landmark.
 
 A candidate is available (``action_mask``) when it holds a goal the agent can reach on its
 motion map; distances are geodesic (one distance field from the agent, the one FBE
@@ -209,12 +210,18 @@ def pose_candidates(
     )  # fmt: skip
     slot = jnp.maximum(choice.index, 0)
     centre, half = obs.object_xy[slot], obs.object_half_extent[slot]
-    vp_xy, _, _ = jax.vmap(viewpoint_candidates, in_axes=(0, 0, None))(centre, half, preset)
+    vp_xy, _, clearance = jax.vmap(viewpoint_candidates, in_axes=(0, 0, None))(
+        centre, half, preset
+    )  # [L, C, 2], [L, C] metres from the footprint
     vp_cell = xy_to_plan_cell(vp_xy, preset)  # [L, C, 2]
     reach = field[vp_cell[..., 0], vp_cell[..., 1]]
     usable = inside_map(vp_xy, preset) & ~blocked[vp_cell[..., 0], vp_cell[..., 1]]
     usable = usable & jnp.isfinite(reach) & (choice.index >= 0)[:, None]
-    best = jnp.argmin(jnp.where(usable, reach, jnp.inf), axis=-1)  # [L]
+    # the tightest ring with a usable viewpoint, then the nearest on it: targets are
+    # verified within 1 m, so a viewpoint close to the footprint sees more of it
+    ring = jnp.where(usable, clearance, jnp.inf)
+    tight = usable & (clearance <= jnp.min(ring, axis=-1, keepdims=True))
+    best = jnp.argmin(jnp.where(tight, reach, jnp.inf), axis=-1)  # [L]
     rows = jnp.arange(best.shape[0])
     l_valid = usable[rows, best]
     # the centre of the viewpoint's planning cell (where the agent stops): exact, so a
