@@ -248,3 +248,10 @@ def test_config_and_old_keywords_agree():
         assert sol.cost == old.cost
     with pytest.raises(TypeError, match="max_iter"):
         solve_vns(inst, max_iter=3)
+
+
+def test_a_batch_of_instances_is_a_one_line_error():
+    inst = random_instance(0, num_sets=3)
+    batch = inst.replace(cost=np.stack([np.asarray(inst.cost)] * 2))
+    with pytest.raises(ValueError, match=r"one instance \(cost \[N, N\]\).*solve_vns_batch"):
+        solve_vns(batch)

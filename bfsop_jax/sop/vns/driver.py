@@ -55,6 +55,12 @@ def solve_vns(
         with nothing reachable gives the start-only plan.
     """
     cfg = VNSConfig.resolve(config, **overrides)
+    cost_shape = np.shape(instance.cost)
+    if len(cost_shape) != 2:
+        raise ValueError(
+            f"solve_vns takes one instance (cost [N, N]), got cost of shape {cost_shape}; "
+            "solve a batch with bfsop_jax.sop.callback.solve_vns_batch"
+        )
     max_iters, max_no_improve, time_limit = cfg.max_iters, cfg.max_no_improve, cfg.time_limit
     squeeze = cfg.squeeze
     inst = instance.to_numpy()
