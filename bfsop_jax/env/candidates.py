@@ -230,11 +230,10 @@ def pose_candidates(
     l_dist = reach[rows, best]
 
     here = xy_to_plan_cell(agent_xy, preset)
-    stop = dict(xy=agent_xy[None], cell=here[None])
     valid = jnp.concatenate([jnp.ones(1, bool), f_valid, l_valid])
-    goal_xy = jnp.concatenate([stop["xy"], f_xy, l_xy])
+    goal_xy = jnp.concatenate([agent_xy[None], f_xy, l_xy])  # stop: where the agent is
     goal_xy = jnp.where(valid[:, None], goal_xy, agent_xy)
-    look_xy = jnp.concatenate([stop["xy"], f_look_xy, centre])
+    look_xy = jnp.concatenate([agent_xy[None], f_look_xy, centre])
     kind = np.concatenate([[STOP], np.full(n_front, FRONTIER), np.full(n_lm, LANDMARK)])
     zeros_f, zeros_l = jnp.zeros(n_front), jnp.zeros(n_lm)
     return Candidates(

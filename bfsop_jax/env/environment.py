@@ -186,15 +186,15 @@ class NavigationEnv:
         benchmark's) can be replayed. ``house_id`` is only recorded (for scoring)."""
         category = jnp.asarray(category, jnp.int32)
         sim = reset(key, house, category, self.preset, params.prior, params.budget)
-        found = sim.found.sum().astype(jnp.int32)
+        n_targets = target_counts(house)[category]
         state = TaskState(
             env=sim,
             house_id=jnp.asarray(house_id, jnp.int32),
-            n_targets=target_counts(house)[category],
+            n_targets=n_targets,
             rewarded=jnp.zeros((), jnp.int32),
             start_xy=sim.pose[:2],
             last_find_length=jnp.zeros((), jnp.float32),
-            stopped=sim.done | (found >= target_counts(house)[category]),
+            stopped=sim.done | (sim.found.sum() >= n_targets),
         )
         if self.candidates:
             state = state.replace(
