@@ -76,14 +76,19 @@ def _report(name: str, timings: dict[str, float], vns_s: float, houses: int, row
     return total
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_data`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--houses", type=positive_int, default=4)
     ap.add_argument("--tasks", type=positive_int, default=48)
     ap.add_argument("--vns-iters", type=positive_int, default=500)
     ap.add_argument("--vns-no-improve", type=positive_int, default=250)
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     preset = get_preset(args.preset)
     config = dataclasses.replace(
         gen.DataConfig(preset=args.preset), houses=100, houses_per_shard=args.houses,

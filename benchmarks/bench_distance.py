@@ -174,13 +174,18 @@ def _in_loop_matrices(preset, maps, points, repeats: int) -> tuple[float, float]
     return float(np.median(sparse_ms)), float(np.median(dense_ms))
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_distance`` (options: docs/cli.md)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--preset", choices=PRESET_NAMES, action="append")
     parser.add_argument("--points", type=positive_int, default=76)
     parser.add_argument("--repeats", type=positive_int, default=10)
     parser.add_argument("--houses", type=positive_int, default=3)
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     for name in args.preset or PRESET_NAMES:
         r = run(name, args.points, args.repeats, args.houses)
         print(

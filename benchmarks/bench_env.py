@@ -141,7 +141,8 @@ def run(preset_name: str, batches: list[int], steps: int, repeats: int) -> dict:
             "rows": rows, "candidates_vs_fbe": ratios}  # fmt: skip
 
 
-def main(argv: list[str] | None = None) -> dict:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_env`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--batches", default="1,32,1024",
@@ -150,7 +151,11 @@ def main(argv: list[str] | None = None) -> dict:
                     help="macro steps per timed call (fewer at large batches)")
     ap.add_argument("--repeats", type=positive_int, default=2)
     ap.add_argument("--json", default=None, help="also write the results here")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = build_parser().parse_args(argv)
     try:
         batches = [int(x) for x in args.batches.split(",")]
     except ValueError:

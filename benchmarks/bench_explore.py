@@ -109,7 +109,8 @@ def run(preset_name: str, houses: int, batch_size: int | None = None) -> dict:
     }
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_explore`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="smoke,demo,paper")
     ap.add_argument("--houses", type=positive_int, default=32, help="distinct houses")
@@ -117,7 +118,11 @@ def main() -> None:
         "--batch", type=positive_int, default=None, help="episodes run together (default: --houses)"
     )
     ap.add_argument("--json", help="also write the figures to this JSON file")
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     where = machine()
     batch = args.houses if args.batch is None else args.batch
     print(f"# bench_explore  houses={args.houses}  batch={batch}  {where}  {dt.date.today()}")

@@ -40,14 +40,19 @@ def _solve_all(instances, n: int, config: VNSConfig) -> tuple[np.ndarray, float]
     return np.asarray(rewards), (time.perf_counter() - t0) / max(n, 1)
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_labels`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="paper", choices=PRESET_NAMES)
     ap.add_argument("--houses", type=positive_int, default=2, help="held-out houses")
     ap.add_argument("--tasks", type=positive_int, default=20, help="virtual tasks per house")
     ap.add_argument("--vns-iters", type=positive_int, default=500)
     ap.add_argument("--vns-no-improve", type=positive_int, default=250)
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     cfg = DataConfig(preset=args.preset, houses=1, tasks_per_house=args.tasks)
     seeds = np.arange(EVAL_SEED_START, EVAL_SEED_START + args.houses)
     instances, _ = pose_tasks(seeds, cfg, progress=False)

@@ -113,12 +113,17 @@ def run(preset_name: str = "demo", batch: int = 64, repeats: int = 10) -> dict:
     }
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_mapping`` (options: docs/cli.md)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     parser.add_argument("--batch", type=positive_int, default=64)
     parser.add_argument("--repeats", type=positive_int, default=10)
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     res = run(args.preset, args.batch, args.repeats)
     print(
         f"{res['preset']} grid {res['grid']} batch {res['batch']} on {res['device']}: "

@@ -77,7 +77,8 @@ def _sizes(text: str) -> list[int]:
     return sizes
 
 
-def main(argv: list[str] | None = None) -> list[dict[str, float]]:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_metrics`` (options: docs/cli.md)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=_sizes, help="comma-separated numbers of targets F",
                         default=f"4,8,12,16,{EXACT_MAX},{EXACT_FORCE_MAX},30")  # fmt: skip
@@ -86,7 +87,11 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]]:
     parser.add_argument("--preset", default=None, choices=PRESET_NAMES,
                         help="also count targets per house")  # fmt: skip
     parser.add_argument("--houses", type=positive_int, default=32, help="houses counted (--preset)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> list[dict[str, float]]:
+    args = build_parser().parse_args(argv)
     print(machine())
     print(f"automatic mode: exact up to EXACT_MAX = {EXACT_MAX} targets, "
           f"exact=True up to {EXACT_FORCE_MAX}")  # fmt: skip

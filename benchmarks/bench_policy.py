@@ -73,7 +73,8 @@ def _program(policy: StrategicPolicy, static_graph, two_opt: bool = True):
     return run
 
 
-def main(argv: list[str] | None = None) -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_policy`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default="demo", help="shipped model name or run directory")
     ap.add_argument(
@@ -86,7 +87,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--batch", type=positive_int, default=1024, help="instances of the batched plan"
     )
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
 
     cfg = DataConfig(preset=args.preset, tasks_per_house=args.tasks)
     seeds = np.arange(EVAL_SEED_START, EVAL_SEED_START + args.houses)

@@ -102,7 +102,8 @@ def run(
     return rows
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_rollout`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--batch", type=positive_int, default=90)
@@ -110,7 +111,11 @@ def main() -> None:
     ap.add_argument("--methods", default=",".join(nav.METHODS))
     ap.add_argument("--checkpoint", default=None)
     ap.add_argument("--json", help="also write the figures to this JSON file")
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     where = machine()
     print(f"# bench_rollout  preset={args.preset}  batch={args.batch}  {where}  "
           f"{dt.date.today().isoformat()}")  # fmt: skip

@@ -225,7 +225,8 @@ def _bench_two_opt(insts, repeats: int) -> None:
         )
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_sop`` (options: docs/cli.md)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sop-dir", help="folder with instances/ and the two CSV files")
     parser.add_argument("--optima", type=count, default=150, help="proven optima (0: skip)")
@@ -239,7 +240,11 @@ def main() -> None:
     parser.add_argument(
         "--time-limit", type=positive_float, default=None, help="VNS seconds per instance"
     )
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     vns_kwargs = {"time_limit": args.time_limit}
     print(
         f"bfsop_jax SOP benchmark, {time.strftime('%Y-%m-%d %H:%M')}, "

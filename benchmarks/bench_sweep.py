@@ -74,14 +74,19 @@ def _run(graphdef, config, members, data, epochs: int) -> tuple[float, np.ndarra
     return seconds, stats[:, 0] / np.maximum(stats[:, 2], 1)
 
 
-def main(argv: list[str] | None = None) -> dict:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_sweep`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=["demo", "paper"])
     ap.add_argument("--model", default=None, help="model preset (default: the preset's)")
     ap.add_argument("--configs", type=positive_int, default=8)
     ap.add_argument("--instances", type=positive_int, default=512)
     ap.add_argument("--epochs", type=positive_int, default=3)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = build_parser().parse_args(argv)
     if args.configs < 2 or args.instances < 1 or args.epochs < 1:
         raise SystemExit("error: need --configs >= 2, --instances >= 1, --epochs >= 1")
     config = RunConfig.named(args.model or args.preset, preset=args.preset)

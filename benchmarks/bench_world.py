@@ -97,13 +97,18 @@ def run(preset_name: str = "demo", batch: int = 64, repeats: int = 5) -> dict:
     return out
 
 
-def main() -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.bench_world`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--batch", type=positive_int, default=64)
     ap.add_argument("--repeats", type=positive_int, default=5)
     ap.add_argument("--json", help="also write the figures to this JSON file")
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = build_parser().parse_args()
     res = run(args.preset, args.batch, args.repeats)
     print(f"# bench_world  preset={res['preset']} batch={res['batch']}  {res['machine']}")
     for key in (

@@ -257,12 +257,17 @@ def plot(
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.compare`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", help="RUN_DIR:METHOD[+RUN_DIR:METHOD...]; first = reference")
     ap.add_argument("--label", action="append", default=None, help="one per run, in order")
     ap.add_argument("--png", default=None, help="also draw the by-count means here")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     labels = args.label or args.runs
     try:
         if len(labels) != len(args.runs):

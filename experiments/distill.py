@@ -79,7 +79,8 @@ __all__ = [
 ]
 
 
-def _parse(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.distill`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=sorted(PRESETS))
     ap.add_argument("--out", default=None, help="run directory (default runs/distill-<preset>)")
@@ -170,7 +171,11 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         "other samples (leave_one_out) or against its greedy plan (greedy, self-critical)",
     )  # fmt: skip
     ap.add_argument("--no-progress", action="store_true")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    args = build_parser().parse_args(argv)
     if args.stage is None:
         args.stage = "data" if args.merge_data else "all"
     if args.compare is not None:

@@ -20,14 +20,19 @@ from bfsop_jax.world.generator import generate_house
 from bfsop_jax.world.prior import DEFAULT_PRIOR_PATH, estimate_prior, save_prior
 
 
-def main(argv: list[str] | None = None) -> None:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.estimate_prior`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--houses", type=int, default=256, help="number of training houses")
     ap.add_argument("--seed-start", type=int, default=0, help="first training house seed")
     ap.add_argument("--batch", type=int, default=32)
     ap.add_argument("--out", default=str(DEFAULT_PRIOR_PATH))
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
     preset = get_preset(args.preset)
     if args.houses < 1 or args.batch < 1 or args.seed_start < 0:
         raise SystemExit(

@@ -59,7 +59,8 @@ def _settings_key(method: str) -> str:
     return "bfsop" if method.startswith("bfsop") else method
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.evaluate`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
     ap.add_argument("--house-seeds", default=None,
@@ -84,7 +85,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="also animate every method's first N episodes (DIR/gifs/)")  # fmt: skip
     ap.add_argument("--out", default=None, help="output dir (default runs/evaluate-<preset>)")
     ap.add_argument("--no-progress", action="store_true")
-    return ap.parse_args(argv)
+    return ap
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def _mesh(devices: int | None):

@@ -65,14 +65,19 @@ def measure(preset_name: str, seeds: range, model: str, categories: int = 3) -> 
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.onpolicy`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--preset", default="demo", choices=["smoke", "demo", "paper"])
     ap.add_argument("--houses", default="300:310", help="training house seeds START:END")
     ap.add_argument("--model", default=None,
                     help="trained run dir or shipped name (default: the preset's)")  # fmt: skip
     ap.add_argument("--categories", type=int, default=3, help="episodes per house")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     from bfsop_jax.config import parse_seed_range
 
     try:

@@ -83,7 +83,8 @@ def recover_houses(
     return [int(h) for h in owners]
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.pool_eval`` (options: docs/cli.md)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", help="evaluation directories (solver_eval.json)")
     parser.add_argument("--out", required=True, help="output directory")
@@ -99,6 +100,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="with --recover-houses: the preset of runs that do not record theirs",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = build_parser()
     args = parser.parse_args(argv)
     results = []
     for run in args.runs:

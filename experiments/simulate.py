@@ -33,7 +33,8 @@ from bfsop_jax.viz.animation import MAX_FRAMES, frame_indices
 from bfsop_jax.world import TARGET_NAMES, generate_house, target_id
 
 
-def main(argv: list[str] | None = None) -> dict:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.simulate`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--method", default="bfsop_st", choices=nav.METHODS + nav.ABLATIONS)
     ap.add_argument("--preset", default="demo", choices=PRESET_NAMES)
@@ -45,7 +46,11 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument("--gif", action="store_true", help="also write episode.gif")
     ap.add_argument("--out", default="runs/simulate")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = build_parser().parse_args(argv)
     preset = get_preset(args.preset)
     if args.budget is not None and not 0 < args.budget < float("inf"):
         raise SystemExit(f"error: --budget must be a positive number of metres, got {args.budget}")

@@ -61,7 +61,8 @@ RESULT_FILE = "sweep_result.json"
 PLANNER = "transformer+2opt"  # greedy decoding + 2-opt + budget gate, no sampling, no fill
 
 
-def _parse(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiments.sweep`` (options: docs/cli.md)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="demo", choices=sorted(distill.PRESETS))
     ap.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...")
@@ -75,7 +76,11 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--eval-tasks", type=int, default=None, help="tasks per held-out house")
     ap.add_argument("--devices", type=int, default=None, help="first N devices (default all)")
     ap.add_argument("--no-progress", action="store_true")
-    return ap.parse_args(argv)
+    return ap
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    return build_parser().parse_args(argv)
 
 
 def _grid(args, base) -> Grid:
