@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from flax import nnx
 
-from bfsop_jax.config import EVAL_SEED_START
+from bfsop_jax.config import EVAL_SEED_START, get_preset
 from bfsop_jax.data.generate import SOURCE_STUDENT, DataConfig, pose_tasks
 from bfsop_jax.data.shards import ShardStore
 from bfsop_jax.eval import solvers as solver_eval
@@ -17,7 +17,7 @@ from bfsop_jax.model import ModelConfig, StrategicTransformer
 from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.sop import evaluate, solve_vns
 from bfsop_jax.sop.io import random_instance
-from bfsop_jax.viz import plot_distance_mass, plot_model_comparison
+from bfsop_jax.viz import plot_distance_mass, plot_model_comparison, plot_tour_comparison
 
 
 @pytest.fixture(scope="module")
@@ -228,14 +228,56 @@ def test_decoder_distance_mass_is_a_distribution(policy, batch, tmp_path):
     assert (tmp_path / "mass.png").stat().st_size > 0
 
 
-def test_pose_tasks_on_held_out_houses():
+@pytest.fixture(scope="module")
+def held_out():
+    """Tasks posed on two held-out smoke houses, with the maps they were posed on."""
     cfg = DataConfig(preset="smoke", houses=1, tasks_per_house=5)
-    insts, owners = pose_tasks([EVAL_SEED_START, EVAL_SEED_START + 1], cfg, progress=False)
+    seeds = [EVAL_SEED_START, EVAL_SEED_START + 1]
+    return cfg, seeds, pose_tasks(seeds, cfg, progress=False, maps=True)
+
+
+def test_pose_tasks_on_held_out_houses(held_out):
+    cfg, seeds, (insts, owners, maps) = held_out
     assert insts.set_id.shape[0] == owners.shape[0] > 0
-    assert set(owners.tolist()) <= {EVAL_SEED_START, EVAL_SEED_START + 1}
+    assert set(owners.tolist()) <= set(seeds)
     assert (np.asarray(insts.set_reward) > 0).any(axis=1).all()  # nothing trivial kept
+    # the map of each house: int8 cell states of the run's final belief, partly explored
+    assert sorted(maps) == seeds
+    for house_map in maps.values():
+        assert house_map.dtype == np.int8 and house_map.shape == get_preset("smoke").grid_shape
+        assert set(np.unique(house_map).tolist()) == {-1, 0, 1}
     with pytest.raises(ValueError, match="at least one house"):
         pose_tasks([], cfg)
+
+
+def test_tour_figure_draws_the_tours_over_their_map(held_out, tmp_path):
+    """``tour_figure`` (the distill evaluation's tour comparison): both plans over the map
+    their instance was posed on, along shortest paths on it; a PNG with the same rewards
+    and costs as ``evaluate``."""
+    from PIL import Image
+
+    from bfsop_jax.eval.distill import tour_figure
+    from bfsop_jax.sop import solve_greedy
+
+    _, _, (insts, owners, maps) = held_out
+    i = int(np.argmax((np.asarray(insts.set_id) >= 0).sum(axis=1)))
+    inst = solver_eval.take(insts, i)
+    greedy = solve_greedy(inst).node_list()
+    plans = {"greedy": greedy, "first set only": greedy[:2]}
+    assert len(greedy) > 1
+    path = tmp_path / "tours.png"
+    scored = tour_figure(inst, plans, maps[int(owners[i])], "smoke", path)
+    for name, nodes in plans.items():
+        reward, cost, _ = evaluate(inst, nodes)
+        assert scored[name] == (nodes, pytest.approx(float(reward)), pytest.approx(float(cost)))
+    with Image.open(path) as img:
+        assert img.format == "PNG" and img.size[0] > img.size[1] > 200
+    # without a map: straight legs on white, still a figure
+    tour_figure(inst, plans, None, "smoke", tmp_path / "plain.png")
+    assert (tmp_path / "plain.png").stat().st_size > 0
+    with pytest.raises(ValueError, match="cell_size"):
+        plot_tour_comparison(inst, {"greedy": scored["greedy"]}, tmp_path / "x.png",
+                             belief=maps[int(owners[i])])  # fmt: skip
 
 
 @pytest.mark.slow

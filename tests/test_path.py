@@ -15,6 +15,7 @@ from bfsop_jax.navigation import (
     NEIGHBOURS,
     cell_blocked,
     distance_field,
+    geodesic_route,
     motion_blocked,
     move_headings,
     move_lengths,
@@ -87,6 +88,30 @@ def test_descent_reaches_goal_along_a_shortest_path(start):
     assert not np.asarray(BLOCKED)[cells[:, 0], cells[:, 1]].any()
     xy = np.asarray(plan_cell_to_xy(jnp.asarray(cells), PRESET))
     assert (xy[:, 1] < 2.0).any()  # it passes the door
+
+
+def test_geodesic_route_follows_the_shortest_paths_through_its_waypoints():
+    """A tour's polyline: each leg descends the next waypoint's field (through the door),
+    from waypoint to waypoint, as long as the fields say (up to the snap to cell centres)."""
+    points = np.array([[2.1, 10.3], [13.0, 9.0], [3.0, 2.0]], np.float32)
+    route = geodesic_route(BLOCKED, points, PRESET)
+    assert route.dtype == np.float32 and route.ndim == 2 and route.shape[1] == 2
+    np.testing.assert_array_equal(route[0], points[0])
+    np.testing.assert_array_equal(route[-1], points[-1])
+    inner = route[1:-1]
+    steps = np.linalg.norm(np.diff(inner, axis=0), axis=1)
+    steps = steps[steps > 1e-6]  # a waypoint between two legs repeats near a cell centre
+    assert (steps <= PC * math.sqrt(2) * 1.5 + 0.3).all()  # cell to cell, or a waypoint
+    cells = np.asarray(xy_to_plan_cell(jnp.asarray(inner), PRESET))
+    assert not np.asarray(BLOCKED)[cells[:, 0], cells[:, 1]].any()
+    assert int((route[:, 1] < 2.0).sum()) > 2  # both legs go through the door (y < 2 m)
+    length = np.linalg.norm(np.diff(route, axis=0), axis=1).sum()
+    fields = [distance_field(BLOCKED, jnp.asarray(p), PRESET) for p in points[1:]]
+    starts = np.asarray(xy_to_plan_cell(jnp.asarray(points[:-1]), PRESET))
+    geodesic = sum(float(f[c[0], c[1]]) for f, c in zip(fields, starts, strict=True))
+    assert geodesic < length < geodesic + 4 * PC  # plus a snap at each end of each leg
+    one = geodesic_route(BLOCKED, points[:1], PRESET)
+    np.testing.assert_array_equal(one, points[:1])
 
 
 def test_no_corner_cutting():

@@ -33,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from bfsop_jax.agents import BFSOP, FBE, VNSPlanner, max_macro_steps, rollout
+from bfsop_jax.agents.record import belief_states
 from bfsop_jax.config import EVAL_SEED_START, Preset, get_preset
 from bfsop_jax.data.schema import make_records
 from bfsop_jax.data.shards import ShardStore
@@ -262,7 +263,8 @@ def pose_tasks(
     config: DataConfig,
     batch: int = 4,
     progress: bool = True,
-) -> tuple[SOPInstance, np.ndarray]:
+    maps: bool = False,
+) -> tuple[SOPInstance, np.ndarray] | tuple[SOPInstance, np.ndarray, dict[int, np.ndarray]]:
     """Unlabelled virtual tasks posed on the partial maps of exploration runs (evaluation).
 
     The same recipe as the training data (exploration run, then ``config.tasks_per_house``
@@ -270,7 +272,11 @@ def pose_tasks(
     (``>= EVAL_SEED_START``). Instances without a rewarding set are dropped.
 
     Returns:
-        ``(instances [I], house_seed [I])`` as NumPy arrays.
+        ``(instances [I], house_seed [I])`` as NumPy arrays; with ``maps`` also the map
+        every task of a house was posed on: house seed -> int8 [H, W] cell states of the
+        run's final belief map (-1 known free, 0 unknown, 1 known occupied, on the 0.1 m
+        grid: :func:`bfsop_jax.agents.record.belief_states`), for pictures of the tours.
+        The instances are the same either way.
     """
     preset = get_preset(config.preset)
     seeds = np.asarray(house_seeds, np.int64).ravel()
@@ -280,7 +286,7 @@ def pose_tasks(
     gen = _generate_houses
     run = jax.jit(explore, static_argnums=4)
     pose = jax.jit(virtual_tasks, static_argnums=(2, 3, 4))
-    parts, owners = [], []
+    parts, owners, house_maps = [], [], {}
     bar = tqdm(total=len(seeds), desc="evaluation tasks", unit="house", disable=not progress)
     for lo in range(0, len(seeds), batch):
         chunk = seeds[lo : lo + batch]
@@ -293,9 +299,13 @@ def pose_tasks(
             useful = (np.asarray(inst.set_reward) > 0).any(axis=-1)
             parts.append(jax.tree_util.tree_map(lambda a, u=useful: np.asarray(a)[u], inst))
             owners.append(np.full(int(useful.sum()), seed, np.int64))
+            if maps:
+                house_maps[int(seed)] = np.asarray(belief_states(state.belief, preset))
             bar.update(1)
     bar.close()
     instances = jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
+    if maps:
+        return instances, np.concatenate(owners), house_maps
     return instances, np.concatenate(owners)
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bfsop_jax import files
@@ -31,7 +32,13 @@ from bfsop_jax.policy import StrategicPolicy
 from bfsop_jax.training.distill import ABLATIONS, COMPARE_PLANNERS, DistillPreset
 from bfsop_jax.viz import plot_distance_mass, plot_model_comparison, plot_tour_comparison
 
-__all__ = ["eval_instances", "preset_planners", "stage_eval", "stage_navigation"]
+__all__ = [
+    "eval_instances",
+    "preset_planners",
+    "stage_eval",
+    "stage_navigation",
+    "tour_figure",
+]
 
 
 def preset_planners(preset: DistillPreset, compare: bool = False) -> dict[str, dict[str, Any]]:
@@ -44,13 +51,20 @@ def preset_planners(preset: DistillPreset, compare: bool = False) -> dict[str, d
 
 
 def eval_instances(
-    preset: DistillPreset, lo: int, hi: int, tasks: int, progress: bool = True
-) -> tuple[Any, np.ndarray]:
+    preset: DistillPreset,
+    lo: int,
+    hi: int,
+    tasks: int,
+    progress: bool = True,
+    maps: bool = False,
+) -> tuple[Any, np.ndarray] | tuple[Any, np.ndarray, dict[int, np.ndarray]]:
     """The held-out instances an evaluation of houses ``lo..hi-1`` plans: ``tasks`` virtual
     tasks posed per house (those without a rewarding set dropped), and the house seed of each
-    instance ``[I]``. Deterministic in its arguments."""
+    instance ``[I]``; with ``maps`` also the map they were posed on per house (house seed ->
+    int8 [H, W] cell states, :func:`~bfsop_jax.data.generate.pose_tasks`). Deterministic in
+    its arguments."""
     cfg = dataclasses.replace(preset.data, tasks_per_house=tasks)
-    return pose_tasks(np.arange(lo, hi), cfg, progress=progress)
+    return pose_tasks(np.arange(lo, hi), cfg, progress=progress, maps=maps)
 
 
 def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any] | None) -> dict:
@@ -66,7 +80,9 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
     policy = StrategicPolicy.load(checkpoint)
     # every --compare model loads before the long part (a bad path costs nothing)
     others = {other: StrategicPolicy.load(other) for other in args.compare or []}
-    instances, owners = eval_instances(preset, lo, hi, tasks, progress=not args.no_progress)
+    instances, owners, maps = eval_instances(
+        preset, lo, hi, tasks, progress=not args.no_progress, maps=True
+    )
     n = int(owners.shape[0])
     print(f"evaluation: {n} instances from houses {lo}..{hi - 1}")
     evaluation = solver_eval.evaluate_solvers(
@@ -108,7 +124,7 @@ def stage_eval(args, preset: DistillPreset, out: Path, ablations: dict[str, Any]
             )  # fmt: skip
             result["compare"][other] = sub.summary["planners"]
     out.mkdir(parents=True, exist_ok=True)
-    _figures(policy, instances, evaluation, out)
+    _figures(policy, instances, evaluation, out, owners, maps, preset.data.preset)
     solver_eval.write_json(result, out / "solver_eval.json")
     header = (
         f"# Distillation results ({args.preset})\n\nHeld-out houses {lo}..{hi - 1}, "
@@ -159,25 +175,68 @@ def stage_navigation(args, preset: DistillPreset, out: Path, policy, checkpoint:
     return {"episodes": len(episodes), "methods": result["methods"]}
 
 
-def _figures(policy, instances, evaluation, out: Path) -> None:
-    """The tour comparison and the distance-mass figures (the mass is added to the
-    evaluation's summary)."""
+def tour_figure(
+    instance: Any,
+    plans: dict[str, list[int]],
+    house_map: np.ndarray | None,
+    preset: str,
+    path: str | os.PathLike,
+) -> dict[str, tuple[list[int], float, float]]:
+    """Draw ``plans`` (name -> node ids in visiting order) of one unbatched ``instance``
+    over the map it was posed on (``plot_tour_comparison``), each tour along its legs'
+    shortest paths on that map (the paths its geodesic costs measure); returns name ->
+    (nodes, reward, cost in metres) as titled.
+
+    Args:
+        house_map: int8 [H, W] cell states of the belief map the instance was built on
+            (:func:`~bfsop_jax.data.generate.pose_tasks` with ``maps``), or None: straight
+            legs on white.
+        preset: name of the environment preset (grid and cell sizes) of the map.
+    """
+    from bfsop_jax.agents.record import OCCUPIED
+    from bfsop_jax.config import get_preset
+    from bfsop_jax.navigation import geodesic_route, true_blocked
     from bfsop_jax.sop import evaluate
 
+    env = get_preset(preset)
+    scored = {}
+    for name, nodes in plans.items():
+        reward, cost, _ = evaluate(instance, nodes)
+        scored[name] = (nodes, float(reward), float(cost))
+    if house_map is None:
+        plot_tour_comparison(instance, scored, path)
+        return scored
+    # the optimistic planning map of the instance: the known-occupied cells inflated by the
+    # robot radius (planning_blocked of the log-odds map is this same inflation)
+    blocked = true_blocked(jnp.asarray(house_map == OCCUPIED), env)
+    coords = np.asarray(instance.coords)
+    routes = {
+        name: geodesic_route(blocked, coords[[n for n in nodes if n >= 0]], env)
+        for name, nodes in plans.items()
+    }
+    plot_tour_comparison(instance, scored, path, belief=house_map, cell_size=env.cell_size,
+                         known=0.0, routes=routes)  # fmt: skip
+    return scored
+
+
+def _figures(
+    policy, instances, evaluation, out: Path, owners: np.ndarray, maps: dict, env: str
+) -> None:
+    """The tour comparison and the distance-mass figures (the mass is added to the
+    evaluation's summary). ``owners`` [I]: the house seed of each instance; ``maps``: house
+    seed -> the int8 map its tasks were posed on; ``env``: the environment preset's name."""
     result = evaluation.summary
     vns_plans = [s.node_list() for s in evaluation.teacher[0]]
     model_plans = evaluation.plans["transformer+2opt"]
     # the instance where the teacher visits the most sets (a readable, non-trivial tour)
     i = int(np.argmax([len(p) for p in vns_plans]))
     inst = solver_eval.take(instances, i)
-    plans = {}
-    for name, nodes in (
-        ("VNS teacher", vns_plans[i]),
-        ("Transformer + 2-opt", [int(x) for x in model_plans[i] if x >= 0]),
-    ):
-        reward, cost, _ = evaluate(inst, nodes)
-        plans[name] = (nodes, float(reward), float(cost))  # fmt: skip
-    plot_tour_comparison(inst, plans, out / "tour_comparison.png")
+    plans = {
+        "VNS teacher": vns_plans[i],
+        "Transformer + 2-opt": [int(x) for x in model_plans[i] if x >= 0],
+    }
+    house_map = maps.get(int(owners[i]))
+    tour_figure(inst, plans, house_map, env, out / "tour_comparison.png")
     mass = solver_eval.decoder_distance_mass(policy, instances)
     result["distance_mass"] = {"all_steps": mass[0].tolist(), "first_step": mass[1].tolist()}
     plot_distance_mass(mass, out / "decoder_distance_mass.png")

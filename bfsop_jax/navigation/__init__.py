@@ -28,7 +28,13 @@ from bfsop_jax.navigation.grid import (
     true_blocked,
     xy_to_plan_cell,
 )
-from bfsop_jax.navigation.path import NEIGHBOURS, move_headings, move_lengths, next_cell
+from bfsop_jax.navigation.path import (
+    NEIGHBOURS,
+    geodesic_route,
+    move_headings,
+    move_lengths,
+    next_cell,
+)
 
 __all__ = [
     "ESCAPE_RADIUS",
@@ -40,6 +46,7 @@ __all__ = [
     "frontier_cells",
     "frontier_clusters",
     "frontier_mask",
+    "geodesic_route",
     "motion_blocked",
     "move_headings",
     "move_lengths",

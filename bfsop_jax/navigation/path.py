@@ -17,6 +17,7 @@ XLA fuses the batched program.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -24,9 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from bfsop_jax.config import Preset, require_preset
+from bfsop_jax.navigation.distance import distance_fields, snap_to_free
+from bfsop_jax.navigation.grid import plan_cell_to_xy, xy_to_plan_cell
 from bfsop_jax.sensing.mapping import ANGLE_UNITS
 
-__all__ = ["NEIGHBOURS", "move_headings", "move_lengths", "next_cell"]
+__all__ = ["NEIGHBOURS", "geodesic_route", "move_headings", "move_lengths", "next_cell"]
 
 # neighbour offsets (drow, dcol); the first four are orthogonal
 NEIGHBOURS = np.array(
@@ -78,3 +81,56 @@ def next_cell(field: jax.Array, cell: jax.Array, preset: Preset):
     moving = ~at_goal & ok
     nxt = jnp.where(moving, nb[k], cell)
     return nxt.astype(jnp.int32), jnp.where(moving, k, -1), at_goal, ok
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _descend(field: jax.Array, cell: jax.Array, preset: Preset, max_moves: int):
+    """Cells [max_moves + 1, 2] of the descent of ``field`` from ``cell`` (the first ``n + 1``
+    are the path), ``n`` moves made, and whether the last cell is the goal."""
+
+    def cond(carry):
+        i, _, moving, _ = carry
+        return moving & (i < max_moves)
+
+    def body(carry):
+        i, cell, _, cells = carry
+        nxt, move, _, _ = next_cell(field, cell, preset)
+        moving = move >= 0
+        cells = cells.at[i + 1].set(nxt)
+        return i + moving.astype(jnp.int32), nxt, moving, cells
+
+    cells = jnp.zeros((max_moves + 1, 2), jnp.int32).at[0].set(cell)
+    n, last, _, cells = jax.lax.while_loop(cond, body, (jnp.int32(0), cell, True, cells))
+    return cells, n, field[last[0], last[1]] == 0.0
+
+
+def geodesic_route(blocked: jax.Array, waypoints_xy: np.ndarray, preset: Preset) -> np.ndarray:
+    """The polyline an agent follows through ``waypoints_xy`` in order (host-side, for
+    pictures): each leg is the descent of the next waypoint's distance field on ``blocked``
+    (:func:`next_cell`, a shortest path of the planning grid, as the environment moves).
+
+    Args:
+        blocked: bool [Hp, Wp] planning map, e.g. the
+            :func:`~bfsop_jax.navigation.grid.planning_blocked` map of the belief map the
+            waypoints were planned on.
+        waypoints_xy: float [W, 2] points in metres, visiting order.
+        preset: the preset (planning cell size and grid shape).
+
+    Returns float32 [P, 2] metres: the first waypoint, the planning-cell centres of each
+    leg, each later waypoint. A leg whose goal cannot be reached is a straight segment.
+    """
+    preset = require_preset(preset)
+    pts = np.asarray(waypoints_xy, np.float32).reshape(-1, 2)
+    if len(pts) < 2:
+        return pts.copy()
+    blocked = jnp.asarray(blocked, bool)
+    fields = distance_fields(blocked, jnp.asarray(pts[1:]), preset)  # [W - 1, Hp, Wp]
+    starts, _ = snap_to_free(blocked, xy_to_plan_cell(jnp.asarray(pts[:-1]), preset))
+    hp, wp = preset.plan_shape
+    route = [pts[:1]]
+    for leg in range(len(pts) - 1):
+        cells, n, arrived = _descend(fields[leg], starts[leg], preset, hp * wp)
+        if bool(arrived):
+            route.append(np.asarray(plan_cell_to_xy(cells[: int(n) + 1], preset)))
+        route.append(pts[leg + 1 : leg + 2])
+    return np.concatenate(route).astype(np.float32)
