@@ -31,6 +31,7 @@ __all__ = [
     "revisit_fraction",
     "bootstrap_ci",
     "paired_bootstrap_ci",
+    "paired_ratio_ci",
 ]
 
 EXACT_MAX = 18
@@ -464,6 +465,60 @@ def _boot_interval(
     return float(lo), float(hi)
 
 
+def _validate_pair(
+    a: ArrayLike, b: ArrayLike, n_boot: int, level: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Two methods' per-episode values on the same episodes, checked (same length)."""
+    av = _validate_boot(a, n_boot, level, "a")
+    bv = _validate_boot(b, n_boot, level, "b")
+    if av.shape != bv.shape:
+        raise ValueError(f"a and b must have the same length, got {av.size} and {bv.size}")
+    return av, bv
+
+
+def paired_ratio_ci(
+    a: ArrayLike,
+    b: ArrayLike,
+    n_boot: int = 2000,
+    level: float = 0.95,
+    seed: int = 0,
+    groups: ArrayLike | None = None,
+) -> tuple[float, float, float]:
+    """Ratio of means ``mean(a) / mean(b)`` of two methods on the same episodes, with a
+    paired percentile bootstrap interval (each resample draws the same episodes, or with
+    ``groups`` the same whole groups, for both methods).
+
+    Args:
+      a, b: ``[N]`` per-episode values (``b``'s mean must be positive).
+      n_boot, level, seed, groups: as in :func:`bootstrap_ci`.
+
+    Returns:
+      ``(ratio, lo, hi)``, dimensionless. Resamples whose ``b`` sums to zero are left out.
+
+    Raises:
+      ValueError: as :func:`paired_bootstrap_ci`, or ``mean(b) <= 0``.
+    """
+    av, bv = _validate_pair(a, b, n_boot, level)
+    if bv.mean() <= 0:
+        raise ValueError(f"the ratio needs a positive mean of b, got {bv.mean()}")
+    g = _validate_groups(groups, av.size)
+    if g is not None:  # per-group sums: a resample draws whole groups
+        av, bv = np.bincount(g, weights=av), np.bincount(g, weights=bv)
+    rng = np.random.default_rng(seed)
+    n = av.size
+    rows = max(1, _BOOT_CHUNK // n)
+    ratios = np.empty(n_boot)
+    for s in range(0, n_boot, rows):
+        e = min(n_boot, s + rows)
+        idx = rng.integers(0, n, size=(e - s, n))
+        den = bv[idx].sum(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios[s:e] = np.where(den > 0, av[idx].sum(axis=1) / den, np.nan)
+    alpha = (1.0 - level) / 2.0
+    lo, hi = np.nanquantile(ratios, [alpha, 1.0 - alpha])
+    return float(av.sum() / bv.sum()), float(lo), float(hi)
+
+
 def bootstrap_ci(
     values: ArrayLike,
     n_boot: int = 2000,
@@ -522,10 +577,7 @@ def paired_bootstrap_ci(
     Raises:
       ValueError: lengths differ, or an input is empty, non-1-D or non-finite; bad ``groups``.
     """
-    av = _validate_boot(a, n_boot, level, "a")
-    bv = _validate_boot(b, n_boot, level, "b")
-    if av.shape != bv.shape:
-        raise ValueError(f"a and b must have the same length, got {av.size} and {bv.size}")
+    av, bv = _validate_pair(a, b, n_boot, level)
     g = _validate_groups(groups, av.size)
     diff = av - bv
     if np.all(diff == diff[0]):

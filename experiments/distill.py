@@ -248,6 +248,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result = stage_eval(args, preset, out, ablations if args.ablations else None)
         summary["solver_eval"] = result
     print(f"done in {time.perf_counter() - t0:.0f} s; outputs in {out}")
+    line = summary.get("solver_eval", {}).get("navigation", {}).get("verdict")
+    if line:  # the last line: what a newcomer reads first
+        print(line)
     return summary
 
 

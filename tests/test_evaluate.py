@@ -13,6 +13,9 @@ from bfsop_jax.eval import navigation as nav
 from bfsop_jax.world.constants import TARGET_NAMES
 from experiments import evaluate
 
+# its module-scoped fixtures are built once: the whole module runs on one xdist worker
+pytestmark = pytest.mark.xdist_group("evaluate")
+
 ARGS = ["--preset", "smoke", "--house-seeds", "1000000:1000002", "--categories", "Apple,HousePlant",
         "--methods", "fbe,bfsop_st", "--batch", "3", "--no-progress"]  # fmt: skip
 
@@ -340,3 +343,29 @@ def test_a_method_keeps_its_colour_whichever_methods_ran():
     assert len(set(every)) == len(every)  # the ablation row is told apart from FBE
     some = nav.method_colours(["tfl_reactive", "bfsop_st", "tfl_reactive_gain"])
     assert some == [every[2], every[4], every[5]]
+
+
+def test_verdict_reads_the_ratio_to_the_best_baseline_and_the_teacher():
+    rng = np.random.default_rng(0)
+    records = []
+    for h in range(5):
+        for c in range(4):
+            base = float(rng.uniform(0.1, 0.2))
+            for m, ppl in (("fbe", 0.5 * base), ("tfl_reactive", base),
+                           ("bfsop_vns", 1.4 * base + 0.01 * rng.normal()),
+                           ("bfsop_st", 1.4 * base)):  # fmt: skip
+                records.append({"house_seed": 1000000 + h, "category": c, "method": m, "ppl": ppl})
+    methods = {m: {"ppl_mean": float(np.mean([r["ppl"] for r in records if r["method"] == m]))}
+               for m in ("fbe", "tfl_reactive", "bfsop_vns", "bfsop_st")}  # fmt: skip
+    line = nav.verdict({"methods": methods, "episodes": records})
+    assert line.startswith("Verdict: BF-SOP (Transformer) PPL")
+    assert "1.40x the best baseline (TFL-Reactive) [1.40x, 1.40x]: ahead" in line
+    assert "its VNS teacher" in line and ": a tie" in line and "over houses" in line
+    del methods["bfsop_st"]
+    assert nav.verdict({"methods": methods, "episodes": records}) == ""
+
+
+def test_table1_ends_with_the_verdict(table1):
+    out, _ = table1
+    last = (out / "table1.md").read_text().strip().splitlines()[-1]
+    assert last.startswith("Verdict: BF-SOP (Transformer)") and "the best baseline (FBE)" in last

@@ -362,3 +362,18 @@ def test_metrics_benchmark_on_house_matrices() -> None:
     house = [r for r in rows if r.get("preset") == "demo"]
     assert [r["F"] for r in house] == [3] and house[0]["pairs"] >= 1
     assert house[0]["misses"] == 0 and house[0]["gap_pct_max"] >= -1e-9
+
+
+def test_paired_ratio_ci_is_the_ratio_of_means_with_a_seeded_interval():
+    rng = np.random.default_rng(3)
+    b = rng.uniform(0.1, 0.3, 60)
+    a = 1.5 * b  # a constant ratio: every resample gives it exactly
+    ratio, lo, hi = metrics.paired_ratio_ci(a, b)
+    assert ratio == pytest.approx(1.5) and lo == pytest.approx(1.5) and hi == pytest.approx(1.5)
+    a = b * rng.uniform(1.0, 2.0, 60)
+    ratio, lo, hi = metrics.paired_ratio_ci(a, b, groups=np.repeat(np.arange(6), 10))
+    assert ratio == pytest.approx(a.mean() / b.mean())
+    assert 1.0 <= lo < ratio < hi <= 2.0
+    assert metrics.paired_ratio_ci(a, b, seed=1) == metrics.paired_ratio_ci(a, b, seed=1)
+    with pytest.raises(ValueError, match="positive mean of b"):
+        metrics.paired_ratio_ci(a, np.zeros(60))

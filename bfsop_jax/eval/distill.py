@@ -172,7 +172,8 @@ def stage_navigation(args, preset: DistillPreset, out: Path, policy, checkpoint:
     tables = out / "tables.md"
     files.write_text(tables, (tables.read_text() if tables.is_file() else "") + text)
     print(text)
-    return {"episodes": len(episodes), "methods": result["methods"]}
+    return {"episodes": len(episodes), "methods": result["methods"],
+            "verdict": nav.verdict(result)}  # fmt: skip
 
 
 def tour_figure(

@@ -88,6 +88,7 @@ from bfsop_jax.eval.tables import (
     method_colours,
     paired,
     summarise,
+    verdict,
     write_figures,
     write_table1,
 )
@@ -117,6 +118,7 @@ __all__ = [
     "paired",
     "load_paths",
     "method_colours",
+    "verdict",
     "write_table1",
     "write_figures",
 ]

@@ -30,6 +30,7 @@ __all__ = [
     "method_colours",
     "paired",
     "summarise",
+    "verdict",
     "write_figures",
     "write_table1",
 ]
@@ -95,6 +96,44 @@ def paired(
     )
 
 
+def verdict(result: dict[str, Any]) -> str:
+    """One line a newcomer can read: BF-SOP (Transformer)'s PPL as a multiple of the best
+    baseline's and of its VNS teacher's, on the same episodes, with 95 % paired bootstrap
+    intervals of the ratio (over houses when the episodes span several, else over
+    episodes), and whether each interval lies above 1, below it, or holds it (a tie).
+    Empty when ``result`` has no BF-SOP (Transformer) row or nothing to compare it with."""
+    methods, episodes = result["methods"], result["episodes"]
+    if "bfsop_st" not in methods:
+        return ""
+    baselines = [m for m in BASELINES if m in methods]
+    others = []
+    if baselines:
+        best = max(baselines, key=lambda m: methods[m]["ppl_mean"])
+        others.append((best, f"the best baseline ({LABELS[best]})"))
+    if "bfsop_vns" in methods:
+        others.append(("bfsop_vns", "its VNS teacher"))
+    several = len({r["house_seed"] for r in episodes}) > 1
+    key = lambda r: (r["house_seed"], r["category"])
+    mine = {key(r): r["ppl"] for r in episodes if r["method"] == "bfsop_st"}
+    parts = []
+    for other, what in others:
+        theirs = {key(r): r["ppl"] for r in episodes if r["method"] == other}
+        shared = sorted(set(mine) & set(theirs))
+        b = [theirs[k] for k in shared]
+        if not shared or sum(b) <= 0:
+            continue
+        groups = [k[0] for k in shared] if several else None
+        ratio, lo, hi = metrics.paired_ratio_ci([mine[k] for k in shared], b, groups=groups)
+        call = "ahead" if lo > 1 else "behind" if hi < 1 else "a tie"
+        parts.append(f"{ratio:.2f}x {what} [{lo:.2f}x, {hi:.2f}x]: {call}")
+    if not parts:
+        return ""
+    over = "houses" if several else "episodes"
+    n = len(mine)
+    return (f"Verdict: BF-SOP (Transformer) PPL {methods['bfsop_st']['ppl_mean']:.3f} is "
+            + " and ".join(parts) + f" ({n} episodes; 95% CI over {over}).")
+
+
 def _ci(lo_hi: Sequence[float]) -> str:
     return f"[{lo_hi[0]:.3f}, {lo_hi[1]:.3f}]"
 
@@ -156,6 +195,9 @@ def write_table1(result: dict[str, Any], path: str | os.PathLike, header: str = 
                 f"| {LABELS[a]} - {LABELS[b]} ({what}) | {d:+.3f} [{lo:+.3f}, {hi:+.3f}] "
                 f"| {house} | {ratio:.2f}x |"
             )
+    line = verdict(result)
+    if line:
+        lines += ["", line]
     text = "\n".join(lines) + "\n"
     files.write_text(path, text)
     return text
