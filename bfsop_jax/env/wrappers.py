@@ -60,8 +60,11 @@ class AutoReset(Wrapper):
             key_step, state, action, params
         )
         done = terminated | truncated
+        info = {**info, "final_observation": obs}
         if self.sparse:
-            obs_new, state_new = sparse_cond(
+            # the rows that did not finish come back as they were: no select needed (a
+            # select over the whole state, houses included, costs a copy of it every step)
+            obs, state = sparse_cond(
                 done,
                 lambda _, k, p, o, s: self.env.reset(k, p),
                 lambda k, p, o, s: (o, s),
@@ -69,15 +72,8 @@ class AutoReset(Wrapper):
             )  # fmt: skip
         else:
             obs_new, state_new = self.env.reset(key_reset, params)
-        info = {**info, "final_observation": obs}
-        return (
-            _select(done, obs_new, obs),
-            _select(done, state_new, state),
-            reward,
-            terminated,
-            truncated,
-            info,
-        )
+            obs, state = _select(done, obs_new, obs), _select(done, state_new, state)
+        return obs, state, reward, terminated, truncated, info
 
 
 @struct.dataclass

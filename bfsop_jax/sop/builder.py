@@ -253,7 +253,9 @@ def viewpoint_candidates(
         gap = jnp.abs(t[:, None] * direction) - half_extent
         return jnp.linalg.norm(jnp.maximum(gap, 0.0), axis=-1)
 
-    # clearance(t) is monotone in t: bisect for clearance(t) == offset.
+    # clearance(t) is monotone in t: bisect for clearance(t) == offset. Unrolled: the same
+    # arithmetic (bit for bit), but one fused kernel instead of 24 loop iterations of
+    # small ones, which cost the candidate interface a quarter of its step time
     def bisect(_, bounds):
         lo, hi = bounds
         mid = 0.5 * (lo + hi)
@@ -261,7 +263,7 @@ def viewpoint_candidates(
         return jnp.where(short, mid, lo), jnp.where(short, hi, mid)
 
     hi = jnp.full(angle.shape, 1.0) * (jnp.linalg.norm(half_extent) + offset)
-    lo, hi = jax.lax.fori_loop(0, 24, bisect, (jnp.zeros_like(hi), hi))
+    lo, hi = jax.lax.fori_loop(0, 24, bisect, (jnp.zeros_like(hi), hi), unroll=True)
     xy = centre + direction * hi[:, None]
     return xy, jnp.asarray(angle), jnp.asarray(offset)
 
