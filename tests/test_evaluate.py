@@ -13,9 +13,6 @@ from bfsop_jax.eval import navigation as nav
 from bfsop_jax.world.constants import TARGET_NAMES
 from experiments import evaluate
 
-# its module-scoped fixtures are built once: the whole module runs on one xdist worker
-pytestmark = pytest.mark.xdist_group("evaluate")
-
 ARGS = ["--preset", "smoke", "--house-seeds", "1000000:1000002", "--categories", "Apple,HousePlant",
         "--methods", "fbe,bfsop_st", "--batch", "3", "--no-progress"]  # fmt: skip
 
